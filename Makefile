@@ -1,0 +1,29 @@
+# One-command set-up: every target creates .venv and installs kx with its pinned dependencies first.
+PY := .venv/bin/python
+STAMP := .venv/.kx-installed
+
+.PHONY: run test test-slow bench calibrate lint
+
+$(STAMP): pyproject.toml
+	python3 -m venv .venv
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+run: $(STAMP)  ## the main job
+	$(PY) -m kx.demo
+
+test: $(STAMP)  ## the default test suite (what CI runs)
+	$(PY) -m pytest -q -n 2
+
+test-slow: $(STAMP)  ## the long tests
+	$(PY) -m pytest -q -n 2 -m slow
+
+bench: $(STAMP)
+	$(PY) -m kx.bench sim
+
+calibrate: $(STAMP)
+	$(PY) scripts/calibrate.py
+
+lint: $(STAMP)
+	$(PY) -m ruff check kx tests scripts

@@ -1,0 +1,454 @@
+"""The keep-away world of SPEC §1 as pure functions: ``reset`` and ``step``.
+
+Grid keep-away after Didi & Nitschke (2016), Table 2: a ``W x W`` field of integer cells, agents make
+one king move per iteration, a passed ball travels two unit sub-steps per iteration, 4500 iterations
+per trial. One iteration runs, in order: the holder's decision, the kick, the keepers' moves, the
+takers' moves, the ball's flight, the tackle. ``docs/simulator.md`` states every rule with its numbers;
+:mod:`kx.sim.reference` restates them one episode at a time in plain Python, and the tests hold this
+module to it exactly.
+
+All state arrays are batch-last (``[n, *B]`` per agent, ``[*B]`` per episode) and every function here
+is rank-polymorphic in ``B``: a single episode is ``B == ()``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from kx.sim import geometry as geo
+from kx.sim.types import (
+    DIST_SCALE,
+    MAX_NOISE_FIELD,
+    NOISE_DENOM,
+    EpisodeStats,
+    KeepAwayConfig,
+    KeepAwayError,
+    KeepAwayParams,
+    Reason,
+    State,
+)
+
+# Get-open scoring (integers; see docs/simulator.md, "Keepers get open").
+OPEN_TAKER_W, OPEN_TAKER_CAP = 4, 5  # distance from the nearest taker, capped
+OPEN_MATE_W, OPEN_MATE_CAP = 2, 4  # distance from the nearest teammate (anti-crowding), capped
+OPEN_LANE_W = 6  # no taker within sqrt(2) cells of the straight lane from the ball
+OPEN_FAR, OPEN_NEAR, OPEN_RANGE_W = 8, 3, 3  # stay within [NEAR, FAR] king moves of the ball
+OPEN_EDGE_W = 4  # avoid the outermost ring of cells
+LANE_CONE = 2  # a taker blocks a lane within atan(1/2) = 26.6 degrees of it (calibrated)
+_INFEASIBLE = 1 << 20
+
+
+def check(config: KeepAwayConfig, params: KeepAwayParams) -> None:
+    """Validates a config and concrete params together; raises :class:`KeepAwayError` naming the field."""
+    params.validate()
+    kn = float(jnp.asarray(params.kick_noise_deg))
+    if kn > 0 and config.field_size > MAX_NOISE_FIELD:
+        raise KeepAwayError(
+            f"kick_noise_deg: kick noise needs field_size <= {MAX_NOISE_FIELD} (exact integer pass geometry), "
+            f"got field_size={config.field_size}"
+        )
+    pairs = config.n_keepers * (config.n_keepers - 1) // 2
+    worst = pairs * DIST_SCALE * math.sqrt(2) * (config.field_size - 1) * int(jnp.asarray(params.max_iterations))
+    if worst >= 2**31:
+        raise KeepAwayError(
+            f"max_iterations: {int(jnp.asarray(params.max_iterations))} is too many for {config.name} on a "
+            f"{config.field_size}-cell field (the dispersion accumulator would overflow); use at most "
+            f"{int((2**31 - 1) / (pairs * DIST_SCALE * math.sqrt(2) * (config.field_size - 1)))}"
+        )
+
+
+def noise_limit(kick_noise_deg) -> jax.Array:
+    """Largest |s| of a kick-noise rotation atan(s/16) within ``kick_noise_deg``."""
+    return jnp.floor(NOISE_DENOM * jnp.tan(jnp.deg2rad(kick_noise_deg)) + 1e-6).astype(jnp.int32)
+
+
+def fenced(fn, *args):
+    """``fn(*args)`` behind a fusion boundary: its results are computed once and stored.
+
+    XLA CPU fuses elementwise producers into every consumer, so a large computation with two consumers
+    (an x and a y) is emitted, and executed, twice. A conditional cannot be fused across; its
+    predicate is always true but read at run time so that it cannot be folded away. (Under ``vmap``
+    the predicate is batched, the conditional becomes a select, and only speed is lost.)
+    """
+    leaf = jax.tree.leaves(args)[0]
+    pred = jnp.ravel(leaf)[0] > jnp.iinfo(jnp.int32).min
+    shapes = jax.eval_shape(fn, *args)
+    never = lambda *_: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)  # noqa: E731
+    return jax.lax.cond(pred, fn, never, *args)
+
+
+def _col(n: int, batch_ndim: int) -> jax.Array:
+    """``arange(n)`` shaped ``[n, 1, ..., 1]`` to broadcast against ``[n, *B]``."""
+    return jnp.arange(n, dtype=jnp.int32).reshape((n,) + (1,) * batch_ndim)
+
+
+def pick(values: jax.Array, index: jax.Array) -> jax.Array:
+    """``values[index]`` along axis 0 for batch-last ``values [n, *B]`` and ``index [*B]``.
+
+    An unrolled select, not a gather or a reduction: for a handful of agents it stays elementwise and
+    fuses into the surrounding loop.
+    """
+    out = values[0]
+    for i in range(1, values.shape[0]):
+        out = jnp.where(index == i, values[i], out)
+    return out
+
+
+def argmin0(values: jax.Array) -> jax.Array:
+    """First index of the minimum along a short axis 0, unrolled (elementwise only)."""
+    best, arg = values[0], jnp.zeros(values.shape[1:], jnp.int32)
+    for i in range(1, values.shape[0]):
+        better = values[i] < best
+        best, arg = jnp.where(better, values[i], best), jnp.where(better, i, arg)
+    return arg
+
+
+def any0(values: jax.Array) -> jax.Array:
+    out = values[0]
+    for i in range(1, values.shape[0]):
+        out = out | values[i]
+    return out
+
+
+# --------------------------------------------------------------------------------------------- reset
+
+
+def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> State:
+    """A start state: distinct random cells, the ball with a random keeper, no taker within
+    ``start_clearance`` king moves of it. One episode; vmap (``out_axes=-1``) for a batch."""
+    w, k, t = config.field_size, config.n_keepers, config.n_takers
+    k_hold, k_keep, k_take = jax.random.split(key, 3)
+    cells = jnp.arange(w * w, dtype=jnp.int32)
+    cx, cy = cells % w, cells // w
+    # Uniform distinct cells: the top-k of i.i.d. uniform scores.
+    keeper_cells = jax.lax.top_k(jax.random.uniform(k_keep, (w * w,)), k)[1].astype(jnp.int32)
+    kx, ky = keeper_cells % w, keeper_cells // w
+    holder = jax.random.randint(k_hold, (), 0, k, dtype=jnp.int32)
+    hx, hy = kx[holder], ky[holder]
+    taken = jnp.zeros(w * w, bool).at[keeper_cells].set(True)
+    forbidden = taken | (geo.cheb(cx, cy, hx, hy) <= params.start_clearance)
+    scores = jnp.where(forbidden, -1.0, jax.random.uniform(k_take, (w * w,)))
+    taker_cells = jax.lax.top_k(scores, t)[1].astype(jnp.int32)
+    zero = jnp.zeros((), jnp.int32)
+    return State(
+        keeper_x=kx, keeper_y=ky, taker_x=taker_cells % w, taker_y=taker_cells // w,
+        holder=holder, ball_x=hx, ball_y=hy, origin_x=hx, origin_y=hy,
+        dir_x=jnp.ones((), jnp.int32), dir_y=zero, substep=zero,
+        kicker=-jnp.ones((), jnp.int32), receiver=-jnp.ones((), jnp.int32), t=zero,
+        done=jnp.zeros((), bool), reason=zero, passes=zero, dispersion_sum=zero, ball_centre_sum=zero,
+    )
+
+
+def reset_batch(key: jax.Array, n: int, params: KeepAwayParams, config: KeepAwayConfig) -> State:
+    """``n`` independent start states, batch-last (``[.., n]``)."""
+    return jax.vmap(lambda kk: reset(kk, params, config), out_axes=-1)(jax.random.split(key, n))
+
+
+# ---------------------------------------------------------------------------------------------- step
+
+
+def step(key: jax.Array, state: State, action: jax.Array, params: KeepAwayParams,
+         config: KeepAwayConfig) -> State:
+    """One iteration. ``action [*B]`` is the keeper the holder sends the ball to: its own index holds
+    (so does any value outside ``[0, K)``); it is ignored while the ball is in flight. ``key`` draws the
+    kick noise (unused when ``kick_noise_deg == 0``). Finished episodes are returned unchanged."""
+    s_max = noise_limit(params.kick_noise_deg)
+    noise = jax.random.randint(key, state.holder.shape, -s_max, s_max + 1, dtype=jnp.int32)
+    return transition(state, action, noise, params, config)
+
+
+def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAwayParams,
+               config: KeepAwayConfig) -> State:
+    """:func:`step` with the kick noise given: a pass is rotated by ``atan(noise / 16)``."""
+    w, nk, nt = config.field_size, config.n_keepers, config.n_takers
+    spd, bspd = config.agent_speed, config.ball_speed
+    bnd = state.holder.ndim
+    kid, tid = _col(nk, bnd), _col(nt, bnd)
+    alive = ~state.done
+    kx, ky, tx, ty = state.keeper_x, state.keeper_y, state.taker_x, state.taker_y
+
+    # 1-2. Decision and kick.
+    holding = state.holder >= 0
+    act = jnp.where((action >= 0) & (action < nk), action, state.holder).astype(jnp.int32)
+    kicks = alive & holding & (act != state.holder)
+    rx, ry = pick(kx, act), pick(ky, act)
+    dx, dy = rx - state.ball_x, ry - state.ball_y
+    handoff = kicks & (dx == 0) & (dy == 0)  # receiver on the holder's own cell: completes at once
+    launch = kicks & ~handoff
+    noisy = noise != 0
+    ex = jnp.where(noisy, NOISE_DENOM * dx - noise * dy, dx)
+    ey = jnp.where(noisy, noise * dx + NOISE_DENOM * dy, dy)
+    holder = jnp.where(launch, -1, jnp.where(handoff, act, state.holder))
+    passes = state.passes + handoff.astype(jnp.int32)
+    origin_x = jnp.where(launch, state.ball_x, state.origin_x)
+    origin_y = jnp.where(launch, state.ball_y, state.origin_y)
+    dir_x = jnp.where(launch, ex, state.dir_x)
+    dir_y = jnp.where(launch, ey, state.dir_y)
+    substep = jnp.where(launch, 0, state.substep)
+    kicker = jnp.where(launch, state.holder, state.kicker)
+    receiver = jnp.where(launch, act, state.receiver)
+    bx, by = state.ball_x, state.ball_y  # the ball has not moved yet this iteration
+    flying = alive & (holder < 0)
+
+    # 3a. Interception plan: each keeper aims at the pass cell nearest to it, ahead of the ball.
+    ik_code, ik_key = fenced(functools.partial(_plan_interception, config=config), kx, ky, origin_x,
+                              origin_y, dir_x, dir_y, substep)
+    ik_key = jnp.where(kid == kicker, 2 * _INFEASIBLE, ik_key)
+    interceptor = argmin0(ik_key)
+    tgt_x, tgt_y = geo.unpack(pick(ik_code, interceptor))
+    # Where the ball is, or will be received: the reference point for getting open and marking.
+    ref_x = jnp.where(flying, tgt_x, bx)
+    ref_y = jnp.where(flying, tgt_y, by)
+
+    # 3b. Keepers move: the holder stays, the interceptor runs to its cell, the rest get open.
+    ox, oy = kx, ky
+    for _ in range(spd):
+        ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, config)
+    ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd)
+    is_int = flying & (kid == interceptor)
+    is_holder = kid == holder
+    nkx = jnp.where(is_holder, kx, jnp.where(is_int, ix, ox))
+    nky = jnp.where(is_holder, ky, jnp.where(is_int, iy, oy))
+    nkx, nky = jnp.where(alive, nkx, kx), jnp.where(alive, nky, ky)
+
+    # 4. Takers move, seeing the keepers' new cells: the nearest chase, the rest mark lanes. They react
+    # to a pass taker_reaction_delay (0 or 1) iterations after its kick (calibrated, see
+    # docs/calibration.md); until then they play as if the kicker still held the ball, on its cell.
+    hold_x, hold_y = pick(nkx, jnp.maximum(holder, 0)), pick(nky, jnp.maximum(holder, 0))
+    seen = flying & ~(launch & (params.taker_reaction_delay > 0))
+    ball_ref_x = jnp.where(flying, bx, hold_x)  # bx: the ball's cell before this iteration's flight
+    ball_ref_y = jnp.where(flying, by, hold_y)
+    ntx, nty = _takers_move(tx, ty, nkx, nky, jnp.where(flying, kicker, holder), seen,
+                            ball_ref_x, ball_ref_y, origin_x, origin_y, dir_x, dir_y, substep,
+                            interceptor, tgt_x, tgt_y, config)
+    ntx, nty = jnp.where(alive, ntx, tx), jnp.where(alive, nty, ty)
+
+    # 5. Ball flight in unit sub-steps.
+    reason = state.reason
+    ball_x, ball_y = jnp.where(holder >= 0, hold_x, bx), jnp.where(holder >= 0, hold_y, by)
+    in_air = flying
+    for _ in range(bspd):
+        k = substep + 1
+        cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, k)
+        out = in_air & ~geo.inside(cx, cy, w)
+        cut = in_air & ~out & any0((ntx == cx) & (nty == cy))
+        on_k = (nkx == cx) & (nky == cy) & (kid != kicker)
+        catch = in_air & ~out & ~cut & any0(on_k)
+        catcher = argmin0(~on_k)
+        substep = jnp.where(in_air, k, substep)
+        ball_x, ball_y = jnp.where(in_air, cx, ball_x), jnp.where(in_air, cy, ball_y)
+        reason = jnp.where(out, Reason.OUT_OF_FIELD, jnp.where(cut, Reason.INTERCEPTED, reason))
+        holder = jnp.where(catch, catcher, holder)
+        passes = passes + catch.astype(jnp.int32)
+        in_air = in_air & ~out & ~cut & ~catch
+
+    # 6. Tackle.
+    held_now = alive & (holder >= 0) & (reason == Reason.RUNNING)
+    hx, hy = pick(nkx, jnp.maximum(holder, 0)), pick(nky, jnp.maximum(holder, 0))
+    tackled = held_now & any0((ntx == hx) & (nty == hy))
+    reason = jnp.where(tackled, Reason.TACKLED, reason)
+
+    # Bookkeeping: the iteration counts, statistics accumulate on the end-of-iteration positions.
+    t = state.t + alive.astype(jnp.int32)
+    reason = jnp.where(alive & (reason == Reason.RUNNING) & (t >= params.max_iterations),
+                       Reason.TIME_LIMIT, reason)
+    disp = _dispersion_q(nkx, nky, config)
+    centre = _ball_centre_q(ball_x, ball_y, config)
+    return State(
+        keeper_x=nkx, keeper_y=nky, taker_x=ntx, taker_y=nty,
+        holder=jnp.where(alive, holder, state.holder),
+        ball_x=jnp.where(alive, ball_x, state.ball_x), ball_y=jnp.where(alive, ball_y, state.ball_y),
+        origin_x=origin_x, origin_y=origin_y, dir_x=dir_x, dir_y=dir_y,
+        substep=jnp.where(alive, substep, state.substep), kicker=kicker, receiver=receiver,
+        t=t, done=state.done | (reason != Reason.RUNNING), reason=reason,
+        passes=jnp.where(alive, passes, state.passes),
+        dispersion_sum=state.dispersion_sum + jnp.where(alive, disp, 0),
+        ball_centre_sum=state.ball_centre_sum + jnp.where(alive, centre, 0),
+    )
+
+
+def max_substep(config: KeepAwayConfig) -> int:
+    """A bound on a pass's sub-steps inside the field: its cell is outside after this many."""
+    return int(math.ceil((config.field_size - 1) * math.sqrt(2.0))) + 1
+
+
+def _plan_interception(px, py, origin_x, origin_y, dir_x, dir_y, substep, config: KeepAwayConfig):
+    """For agents at ``(px, py) [n, *B]``: the pass cell each aims at and a sort key.
+
+    An agent aims at the cell of the pass sub-step nearest to it (its perpendicular foot on the ball's
+    line, rounded), but at least one sub-step ahead of the ball. It can intercept there if the cell is
+    inside the field and it can reach it, ``agent_speed`` king moves an iteration, by the iteration in
+    which the ball gets there. The key sorts feasible agents by that sub-step (earliest first), then the
+    infeasible ones by how late they would be.
+    """
+    k0 = substep
+    kmax = max_substep(config)
+    kp = geo.projection_substep(px, py, origin_x, origin_y, dir_x, dir_y)
+    kt = jnp.clip(kp, k0 + 1, jnp.maximum(k0 + 1, kmax))
+    cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, kt)
+    reach = geo.cheb(px, py, cx, cy)
+    moves = ((kt - k0 + config.ball_speed - 1) // config.ball_speed) * config.agent_speed
+    ok = geo.inside(cx, cy, config.field_size) & (reach <= moves)
+    key = jnp.where(ok, kt, _INFEASIBLE // 2 + jnp.maximum(reach - moves, 0))
+    return geo.pack(cx, cy), key
+
+
+def _get_open(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, config: KeepAwayConfig):
+    best_m = fenced(functools.partial(_get_open_move, config=config), kx, ky, snap_kx, snap_ky, tx, ty,
+                     ref_x, ref_y)
+    mx, my = jnp.zeros_like(kx), jnp.zeros_like(ky)
+    for i, (dx, dy) in enumerate(geo.MOVES.tolist()):
+        mx, my = jnp.where(best_m == i, dx, mx), jnp.where(best_m == i, dy, my)
+    return kx + mx, ky + my
+
+
+def _get_open_move(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, config: KeepAwayConfig):
+    """Every keeper's best king move (or stay) by the integer get-open score; see docs/simulator.md.
+
+    ``kx, ky [K, *B]`` are the positions being improved; teammates are seen at ``snap_k*``. Written
+    as an unrolled running best over the 9 candidates (elementwise only), which XLA fuses into one
+    vectorised loop; an ``argmax`` over a small leading axis does not vectorise on CPU.
+    """
+    w, nk, nt = config.field_size, config.n_keepers, config.n_takers
+    kid = _col(nk, kx.ndim - 1)
+    best_s = best_m = None
+    m_index = 0
+    for mx, my in geo.MOVES.tolist():
+        cx, cy = kx + mx, ky + my  # [K, *B]
+        d_taker = jnp.full(cx.shape, OPEN_TAKER_CAP, jnp.int32)
+        open_lane = jnp.ones(cx.shape, bool)
+        vx, vy = cx - ref_x, cy - ref_y
+        vv = vx * vx + vy * vy
+        for j in range(nt):
+            d_taker = jnp.minimum(d_taker, geo.cheb(cx, cy, tx[j], ty[j]))
+            wx, wy = tx[j] - ref_x, ty[j] - ref_y
+            dot = vx * wx + vy * wy
+            cross = vx * wy - vy * wx
+            open_lane = open_lane & ~((dot > 0) & (dot < vv) & (LANE_CONE * jnp.abs(cross) <= dot))
+        d_mate = jnp.full(cx.shape, OPEN_MATE_CAP, jnp.int32)
+        for m in range(nk):
+            d = geo.cheb(cx, cy, snap_kx[m], snap_ky[m])
+            d_mate = jnp.minimum(d_mate, jnp.where(kid == m, OPEN_MATE_CAP, d))
+        d_ball = geo.cheb(cx, cy, ref_x, ref_y)
+        edge = (cx == 0) | (cy == 0) | (cx == w - 1) | (cy == w - 1)
+        score = (OPEN_TAKER_W * d_taker + OPEN_MATE_W * d_mate + OPEN_LANE_W * open_lane
+                 - OPEN_RANGE_W * (jnp.maximum(d_ball - OPEN_FAR, 0) + jnp.maximum(OPEN_NEAR - d_ball, 0))
+                 - OPEN_EDGE_W * edge)
+        if best_s is None:  # staying is always inside the field
+            best_s, best_m = score, jnp.zeros(cx.shape, jnp.int32)
+        else:
+            better = geo.inside(cx, cy, w) & (score > best_s)  # strict: the earlier move wins ties
+            best_s = jnp.where(better, score, best_s)
+            best_m = jnp.where(better, m_index, best_m)
+        m_index += 1
+    return best_m
+
+
+def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origin_y, dir_x, dir_y,
+                 substep, interceptor, tgt_x, tgt_y, config: KeepAwayConfig):
+    """Chasers (the ``n_chasers`` takers nearest the ball) go for the ball; markers cover lanes."""
+    nk, nt, spd = config.n_keepers, config.n_takers, config.agent_speed
+    bnd = tx.ndim - 1
+    tid, kid = _col(nt, bnd), _col(nk, bnd)
+    d_ball = geo.cheb(tx, ty, ball_x, ball_y)  # [T, *B]
+    # rank by (distance, index): the chasers are ranks 0 .. n_chasers-1.
+    rank = jnp.zeros_like(d_ball)
+    for m in range(nt):
+        rank = rank + ((d_ball[m] < d_ball) | ((d_ball[m] == d_ball) & (m < tid))).astype(jnp.int32)
+    chaser = rank < config.n_chasers
+    # A chaser heads for the holder, or for its cut point of a pass if it can make it there in time,
+    # else for the cell where the ball will be received.
+    cut_code, cut_key = fenced(functools.partial(_plan_interception, config=config), tx, ty, origin_x,
+                                origin_y, dir_x, dir_y, substep)
+    cut_x, cut_y = geo.unpack(cut_code)
+    can_cut = cut_key < _INFEASIBLE // 2
+    chase_x = jnp.where(flying, jnp.where(can_cut, cut_x, tgt_x), ball_x)
+    chase_y = jnp.where(flying, jnp.where(can_cut, cut_y, tgt_y), ball_y)
+    # Markers: the m-th marker (by rank) takes the m-th most open keeper (openness: distance to the
+    # nearest chaser), excluding the keeper at the ball, and stands mid-lane between ball and keeper.
+    if nt > config.n_chasers:
+        ball_keeper = jnp.where(flying, interceptor, holder)
+        big = 4 * config.field_size
+        open_k = jnp.full(kx.shape, big, jnp.int32)
+        for j in range(nt):
+            d = geo.cheb(kx, ky, tx[j], ty[j])
+            open_k = jnp.minimum(open_k, jnp.where(chaser[j], d, big))
+        eligible = kid != ball_keeper
+        open_k = jnp.where(eligible, open_k, -1)
+        k_rank = jnp.zeros_like(open_k)
+        for m in range(nk):
+            k_rank = k_rank + ((open_k[m] > open_k) | ((open_k[m] == open_k) & (m < kid))).astype(jnp.int32)
+        n_elig = nk - 1
+        m_rank = (rank - config.n_chasers) % n_elig  # [T, *B]
+        # keeper whose openness rank equals each marker's rank
+        match = k_rank[None] == m_rank[:, None]  # [T, K, *B]
+        mk_x = jnp.sum(jnp.where(match, kx[None], 0), axis=1)
+        mk_y = jnp.sum(jnp.where(match, ky[None], 0), axis=1)
+        mark_x, mark_y = (ball_x + mk_x) // 2, (ball_y + mk_y) // 2
+        goal_x = jnp.where(chaser, chase_x, mark_x)
+        goal_y = jnp.where(chaser, chase_y, mark_y)
+    else:
+        goal_x, goal_y = chase_x, chase_y
+    return geo.toward(tx, ty, goal_x, goal_y, spd)
+
+
+def _dispersion_q(kx, ky, config: KeepAwayConfig):
+    """Sum over keeper pairs of ``DIST_SCALE * distance`` (integer, table lookup)."""
+    table = jnp.asarray(geo.dist_table())
+    total = jnp.zeros(kx.shape[1:], jnp.int32)
+    for i in range(config.n_keepers):
+        for j in range(i + 1, config.n_keepers):
+            dx, dy = kx[i] - kx[j], ky[i] - ky[j]
+            total = total + table[dx * dx + dy * dy]
+    return total
+
+
+def _ball_centre_q(bx, by, config: KeepAwayConfig):
+    """``DIST_SCALE * distance`` from the ball's cell (clipped into the field) to the field centre."""
+    w = config.field_size
+    cx, cy = jnp.clip(bx, 0, w - 1), jnp.clip(by, 0, w - 1)
+    ux, uy = 2 * cx - (w - 1), 2 * cy - (w - 1)
+    return jnp.asarray(geo.half_dist_table())[ux * ux + uy * uy]
+
+
+# -------------------------------------------------------------------------------------- statistics
+
+
+def behaviour_bounds(config: KeepAwayConfig, params: KeepAwayParams):
+    """Analytic normalisers of the behaviour statistics (task-dependent only)."""
+    diag = (config.field_size - 1) * math.sqrt(2.0)
+    return params.max_iterations, diag, diag / 2.0
+
+
+def episode_stats(state: State, params: KeepAwayParams, config: KeepAwayConfig) -> EpisodeStats:
+    """Fitness, termination and the normalised behaviour vector of (finished) episodes.
+
+    Fitness is iterations survived / max_iterations: an iteration in which the ball was lost does not
+    count. Behaviour: completed passes / max_iterations (at most one pass completes per iteration),
+    mean pairwise keeper distance / the largest cell distance, mean ball distance from the centre /
+    its largest value; both means over the iterations executed.
+    """
+    lost = (state.reason == Reason.INTERCEPTED) | (state.reason == Reason.TACKLED) | (
+        state.reason == Reason.OUT_OF_FIELD)
+    survived = state.t - lost.astype(jnp.int32)
+    max_it = jnp.asarray(params.max_iterations, jnp.float32)
+    fitness = survived.astype(jnp.float32) / max_it
+    steps = jnp.maximum(state.t, 1).astype(jnp.float32)
+    n_pairs = config.n_keepers * (config.n_keepers - 1) // 2
+    _, diag, half = behaviour_bounds(config, params)
+    disp = state.dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * diag)
+    centre = state.ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * half)
+    passes = state.passes.astype(jnp.float32) / max_it
+    behaviour = jnp.stack([passes, jnp.minimum(disp, 1.0), jnp.minimum(centre, 1.0)])
+    return EpisodeStats(fitness=fitness, iterations=state.t, reason=state.reason, passes=state.passes,
+                        behaviour=behaviour)
+
+
+def as_numpy(state: State) -> dict[str, np.ndarray]:
+    """The state's fields as numpy arrays (for the reference, rendering and tests)."""
+    return {f: np.asarray(getattr(state, f)) for f in state.__dataclass_fields__}

@@ -1,0 +1,234 @@
+"""Batched evaluation of G policies on T shared start states, paying only for live episodes.
+
+Every (policy, trial) pair is a *lane*; lanes are batch-last arrays stepped in lockstep by a jitted
+``while_loop`` of ``chunk`` iterations that stops early once every lane has finished. Between chunks the
+host counts the live lanes and, when they fit the next smaller size on a ladder of widths (powers of
+two), gathers them into that narrower batch. Each
+width compiles once per (policy, task) and is reused across generations. A batch whose episodes end
+early therefore costs about what its live steps cost, and the results equal those of each episode run
+alone (lanes never interact; the tests check this).
+
+Randomness (kick noise, stochastic policies) is derived per lane and iteration with ``fold_in``, so it
+does not depend on how lanes are batched: the kick noise of trial ``i`` at iteration ``t`` is the same
+for every policy (common random numbers).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from kx.sim import env
+from kx.sim.policies import Policy
+from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
+
+
+@dataclasses.dataclass
+class EvalCounters:
+    """What an evaluation executed: lane-steps stepped in lockstep and those of live episodes."""
+
+    executed_steps: int = 0
+    live_steps: int = 0
+    chunks: int = 0
+    widths: tuple[int, ...] = ()
+
+
+def width_ladder(n: int, smallest: int = 64, multiple: int = 1) -> list[int]:
+    """Batch widths, descending: ``n``, then powers of two below it down to ``smallest``, with 3/4 of
+    each power from 1024 up (long episodes of good teams make wide tails).
+
+    Each width costs one compilation (a few seconds on CPU, then cached), so the ladder is coarse.
+    Widths are rounded up to a ``multiple`` (the number of devices the lanes are split over).
+    """
+    sizes = {n}
+    p = smallest
+    while p < n:
+        sizes.add(p)
+        if p >= 1024 and p * 3 // 4 < n:
+            sizes.add(p * 3 // 4)
+        p *= 2
+    sizes = {-(-w // multiple) * multiple for w in sizes}
+    return sorted(sizes, reverse=True)
+
+
+def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
+    """One key per lane for iteration ``t``: ``fold_in(fold_in(key, id), t)``."""
+    return jax.vmap(lambda i, tt: jax.random.fold_in(jax.random.fold_in(key, i), tt))(ids, t)
+
+
+def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id: jax.Array,
+                   key: jax.Array, params: KeepAwayParams, *, policy: Policy, config: KeepAwayConfig,
+                   chunk: int, unroll: int):
+    """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early when all have finished.
+
+    The loop checks for the end every ``unroll`` iterations (a finished episode is left unchanged by
+    further steps, so overshooting is harmless and only costs lockstep work).
+    """
+    noise_key, policy_key = jax.random.split(key)
+    s_max = env.noise_limit(params.kick_noise_deg)
+
+    def one(state):
+        pkeys = _lane_keys(policy_key, lane_id, state.t) if policy.stochastic else None
+        action = env.fenced(policy.apply, lane_params, state, pkeys)
+
+        def draw(_):
+            keys = _lane_keys(noise_key, trial_id, state.t)
+            return jax.vmap(lambda k: jax.random.randint(k, (), -s_max, s_max + 1, dtype=jnp.int32))(keys)
+
+        noise = jax.lax.cond(s_max > 0, draw, lambda _: jnp.zeros_like(state.t), None)
+        return env.transition(state, action, noise, params, config)
+
+    def body(carry):
+        state, i = carry
+        for _ in range(unroll):
+            state = one(state)
+        return state, i + unroll
+
+    def cond(carry):
+        state, i = carry
+        return (i < chunk) & ~jnp.all(state.done)
+
+    state, steps = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
+    return state, steps[None], jnp.sum(~state.done)[None]
+
+
+@functools.partial(jax.jit, static_argnames=("policy", "config", "chunk", "unroll", "n_dev"))
+def _advance(state, lane_params, trial_id, lane_id, key, params, *, policy, config, chunk, unroll,
+             n_dev):
+    """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
+    and stops when its own lanes have finished. Returns the state, the iterations each device ran
+    ``[n_dev]`` and the live lanes on each ``[n_dev]``."""
+    local = functools.partial(_advance_local, policy=policy, config=config, chunk=chunk, unroll=unroll)
+    if n_dev == 1:
+        return local(state, lane_params, trial_id, lane_id, key, params)
+    mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
+    lanes = jax.sharding.PartitionSpec(*([None] * 0), "lanes")
+
+    def spec(tree):
+        return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
+
+    rep = jax.sharding.PartitionSpec()
+    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params))
+    out_specs = (spec(state), lanes, lanes)
+    return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
+        state, lane_params, trial_id, lane_id, key, params)
+
+
+@functools.partial(jax.jit, static_argnames=("width",))
+def _compact(state: State, lane_params: Any, trial_id, lane_id, *, width: int):
+    """The ``width`` lanes that come first when live lanes are put before finished ones."""
+    order = jnp.argsort(state.done, stable=True)[:width]
+    take = lambda a: jnp.take(a, order, axis=-1)  # noqa: E731
+    return (jax.tree.map(take, state), jax.tree.map(take, lane_params), take(trial_id), take(lane_id))
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def _record(results: EpisodeStats, state: State, lane_id, params: KeepAwayParams, *, config):
+    stats = env.episode_stats(state, params, config)
+    return jax.tree.map(lambda r, s: r.at[..., lane_id].set(s), results, stats)
+
+
+def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
+             config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 64,
+             unroll: int = 1, devices: int | None = None,
+             counters: EvalCounters | None = None) -> EpisodeStats:
+    """Runs every policy on every start state to the end of its episode.
+
+    Args:
+      policy: the policy (see :mod:`kx.sim.policies`).
+      policy_params: a pytree with a leading axis of G parameter sets, or ``None`` (G = 1).
+      starts: T start states, batch-last (``[.., T]``), e.g. from :func:`kx.sim.env.reset_batch`.
+      params, config: the world.
+      key: needed for kick noise and stochastic policies.
+      chunk: iterations per compiled call between compactions.
+      unroll: iterations between checks for the end inside a call.
+      devices: split the lanes over this many local devices (default: all). On a CPU, run with
+        ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to get one device per core.
+      counters: if given, filled with executed and live lane-steps.
+
+    Returns:
+      :class:`EpisodeStats` with batch ``[G, T]`` (``behaviour`` is ``[3, G, T]``).
+    """
+    env.check(config, params)
+    if key is None:
+        if policy.stochastic or float(jnp.asarray(params.kick_noise_deg)) > 0:
+            raise ValueError("key: a key is needed for kick noise and for stochastic policies")
+        key = jax.random.key(0)
+    n_trials = starts.holder.shape[-1]
+    leaves = jax.tree.leaves(policy_params)
+    n_pol = leaves[0].shape[0] if leaves else 1
+    n = n_pol * n_trials
+    n_dev = min(devices or jax.local_device_count(), jax.local_device_count())
+    ladder = width_ladder(n, multiple=n_dev)
+    width = ladder[0]
+    # Lanes past n (padding to a multiple of the devices) repeat lane i mod n: the same episode, with
+    # the same keys, so recording it twice writes the same values.
+    lane_id = jnp.arange(width, dtype=jnp.int32) % n
+    trial_id = lane_id % n_trials
+    state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
+    lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
+                               policy_params)
+    results = jax.tree.map(lambda a: a[..., :n], env.episode_stats(state, params, config))
+    widths = [width]
+    while True:
+        state, steps, n_live = _advance(state, lane_params, trial_id, lane_id, key, params,
+                                        policy=policy, config=config, chunk=chunk, unroll=unroll,
+                                        n_dev=n_dev)
+        n_live = int(jnp.sum(n_live))
+        if counters is not None:
+            counters.chunks += 1
+            counters.executed_steps += int(jnp.sum(steps)) * (width // n_dev)
+        if n_live == 0:
+            break
+        target = min(w for w in ladder if w >= n_live)
+        if target < width:
+            results = _record(results, state, lane_id, params, config=config)
+            state, lane_params, trial_id, lane_id = _compact(state, lane_params, trial_id, lane_id,
+                                                             width=target)
+            width = target
+            widths.append(width)
+    results = _record(results, state, lane_id, params, config=config)
+    if counters is not None:
+        counters.live_steps += int(jnp.sum(results.iterations))
+        counters.widths = tuple(widths)
+    shape = (n_pol, n_trials)
+    return jax.tree.map(lambda a: a.reshape(a.shape[:-1] + shape), results)
+
+
+def rollout(policy: Policy, policy_params: Any, start: State, params: KeepAwayParams,
+            config: KeepAwayConfig, *, key: jax.Array | None = None, n_steps: int | None = None):
+    """One episode step by step, every state kept (for rendering and inspection).
+
+    ``policy_params`` is one parameter set (no leading axis). Returns the stacked states
+    ``[n_steps + 1]`` (leading axis; the first is ``start``) and the actions taken ``[n_steps]``.
+    Steps after the episode ends repeat its final state.
+    """
+    n_steps = int(params.max_iterations) if n_steps is None else n_steps
+    key = jax.random.key(0) if key is None else key
+    return _rollout(policy, policy_params, start, key, params, config=config, n_steps=n_steps)
+
+
+@functools.partial(jax.jit, static_argnums=(0,), static_argnames=("config", "n_steps"))
+def _rollout(policy, policy_params, start, key, params, *, config, n_steps):
+    noise_key, policy_key = jax.random.split(key)
+    s_max = env.noise_limit(params.kick_noise_deg)
+    lane = jnp.zeros((1,), jnp.int32)
+    batched = jax.tree.map(lambda a: a[..., None], start)
+    lp = jax.tree.map(lambda p: jnp.asarray(p)[..., None], policy_params)
+
+    def body(state, _):
+        pkeys = _lane_keys(policy_key, lane, state.t) if policy.stochastic else None
+        action = env.fenced(policy.apply, lp, state, pkeys)
+        keys = _lane_keys(noise_key, lane, state.t)
+        noise = jax.vmap(lambda k: jax.random.randint(k, (), -s_max, s_max + 1, dtype=jnp.int32))(keys)
+        nxt = env.transition(state, action, noise, params, config)
+        return nxt, (nxt, action)
+
+    _, (states, actions) = jax.lax.scan(body, batched, None, length=n_steps)
+    states = jax.tree.map(lambda s0, s: jnp.concatenate([s0[None], s], axis=0), batched, states)
+    return jax.tree.map(lambda a: a[..., 0], states), actions[..., 0]

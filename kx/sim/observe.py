@@ -1,0 +1,190 @@
+"""Observations of the holder's situation and the decoding of policy outputs into actions.
+
+Three layouts (SPEC §1, "Observations"):
+
+* ``fixed``, 13 inputs / 3 outputs (the paper's Table 1): the holder K1, its 2 nearest teammates and
+  2 nearest takers sorted by distance. The same layout for every team size, so a genome transfers.
+* ``full``, ``4K + 2T - 3`` inputs / K outputs (Stone, Sutton & Kuhlmann 2005): every teammate and
+  taker, sorted by distance from the holder.
+* ``bev``, the ``W x W`` Bird's Eye View image of HyperNEAT (Verbancsics & Stanley 2010).
+
+Distances are divided by the largest cell distance ``(W-1) * sqrt(2)``, angles by pi. Actions are keeper
+indices (the holder's own index holds), as :func:`kx.sim.env.step` takes them. All functions are
+batch-last and rank-polymorphic like the simulator; outputs of the observations are float32.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from kx.sim.env import _col, pick
+from kx.sim.types import KeepAwayConfig, State
+
+FIXED_INPUTS, FIXED_OUTPUTS = 13, 3
+BEV_KEEPER, BEV_TAKER, BEV_PATH_KEEPER, BEV_PATH_TAKER = 1.0, -1.0, 0.3, -0.3
+
+
+def n_inputs(layout: str, config: KeepAwayConfig) -> int:
+    return {"fixed": FIXED_INPUTS, "full": 4 * config.n_keepers + 2 * config.n_takers - 3,
+            "bev": config.field_size**2}[layout]
+
+
+def n_outputs(layout: str, config: KeepAwayConfig) -> int:
+    return {"fixed": FIXED_OUTPUTS, "full": config.n_keepers, "bev": config.field_size**2}[layout]
+
+
+def _holder(state: State) -> jax.Array:
+    return jnp.maximum(state.holder, 0)
+
+
+def teammate_order(state: State, config: KeepAwayConfig) -> jax.Array:
+    """Keeper indices sorted by squared distance from the holder (ties: lower index), holder first.
+
+    Returns ``[K, *B]``: row 0 is the holder, row r its r-th nearest teammate.
+    """
+    h = _holder(state)
+    kx, ky = state.keeper_x, state.keeper_y
+    hx, hy = pick(kx, h), pick(ky, h)
+    d2 = (kx - hx) ** 2 + (ky - hy) ** 2
+    d2 = jnp.where(_col(config.n_keepers, h.ndim) == h, -1, d2)
+    return _argsort_small(d2)
+
+
+def taker_order(state: State, config: KeepAwayConfig) -> jax.Array:
+    """Taker indices sorted by squared distance from the holder (ties: lower index)."""
+    h = _holder(state)
+    hx, hy = pick(state.keeper_x, h), pick(state.keeper_y, h)
+    d2 = (state.taker_x - hx) ** 2 + (state.taker_y - hy) ** 2
+    return _argsort_small(d2)
+
+
+def _argsort_small(v: jax.Array) -> jax.Array:
+    """Stable argsort along axis 0 of a short axis, by counting (no sort op on the batch)."""
+    n = v.shape[0]
+    idx = _col(n, v.ndim - 1)
+    rank = jnp.zeros_like(v, dtype=jnp.int32)
+    for m in range(n):
+        rank = rank + ((v[m] < v) | ((v[m] == v) & (m < idx))).astype(jnp.int32)
+    # invert the permutation: order[r] = i where rank[i] == r
+    return jnp.sum(jnp.where(rank[None] == idx[:, None], idx[None], 0), axis=1).astype(jnp.int32)
+
+
+def _features(state: State, config: KeepAwayConfig, n_mates: int, n_takers: int) -> jax.Array:
+    """Stone-style features from the holder's view with ``n_mates`` teammates and ``n_takers`` takers."""
+    w = config.field_size
+    diag = (w - 1) * math.sqrt(2.0)
+    c = (w - 1) / 2.0
+    ko, to = teammate_order(state, config), taker_order(state, config)
+    fx = lambda a: a.astype(jnp.float32)  # noqa: E731
+    kxs = [fx(pick(state.keeper_x, ko[r])) for r in range(n_mates + 1)]
+    kys = [fx(pick(state.keeper_y, ko[r])) for r in range(n_mates + 1)]
+    txs = [fx(pick(state.taker_x, to[r])) for r in range(n_takers)]
+    tys = [fx(pick(state.taker_y, to[r])) for r in range(n_takers)]
+    dist = lambda ax, ay, bx, by: jnp.sqrt((ax - bx) ** 2 + (ay - by) ** 2) / diag  # noqa: E731
+
+    def angle(ix, iy, jx, jy):  # angle at the holder between holder->i and holder->j, over pi
+        ux, uy, vx, vy = ix - kxs[0], iy - kys[0], jx - kxs[0], jy - kys[0]
+        return jnp.arctan2(jnp.abs(ux * vy - uy * vx), ux * vx + uy * vy) / math.pi
+
+    mates = range(1, n_mates + 1)
+    feats = [dist(kxs[0], kys[0], c, c)]
+    feats += [dist(kxs[0], kys[0], kxs[i], kys[i]) for i in mates]
+    feats += [dist(kxs[0], kys[0], txs[j], tys[j]) for j in range(n_takers)]
+    feats += [dist(kxs[i], kys[i], c, c) for i in mates]
+    feats += [dist(txs[j], tys[j], c, c) for j in range(n_takers)]
+    feats += [_min(dist(kxs[i], kys[i], txs[j], tys[j]) for j in range(n_takers)) for i in mates]
+    feats += [_min(angle(kxs[i], kys[i], txs[j], tys[j]) for j in range(n_takers)) for i in mates]
+    return jnp.stack(feats)
+
+
+def _min(xs):
+    xs = list(xs)
+    out = xs[0]
+    for x in xs[1:]:
+        out = jnp.minimum(out, x)
+    return out
+
+
+def fixed_obs(state: State, config: KeepAwayConfig) -> jax.Array:
+    """The paper's 13 inputs ``[13, *B]``: dist(K1,C), dist(K1,K2), dist(K1,K3), dist(K1,T1),
+    dist(K1,T2), dist(K2,C), dist(K3,C), dist(T1,C), dist(T2,C), min_j dist(K2,Tj), min_j dist(K3,Tj),
+    min_j ang(K2,K1,Tj), min_j ang(K3,K1,Tj), with j over T1, T2."""
+    return _features(state, config, 2, 2)
+
+
+def full_obs(state: State, config: KeepAwayConfig) -> jax.Array:
+    """Stone et al.'s ``4K + 2T - 3`` inputs, in the order of :func:`fixed_obs` generalised to every
+    teammate and taker (sorted by distance from the holder)."""
+    return _features(state, config, config.n_keepers - 1, config.n_takers)
+
+
+def decode_ranked(outputs: jax.Array, state: State, config: KeepAwayConfig) -> jax.Array:
+    """Outputs ``[n, *B]`` (hold, pass to the 1st, 2nd, ... nearest teammate) to a keeper index.
+
+    The largest output acts; ties go to the earlier output (hold first)."""
+    choice = jnp.argmax(outputs, axis=0).astype(jnp.int32)
+    return pick(teammate_order(state, config), choice)
+
+
+def bev_obs(state: State, config: KeepAwayConfig) -> jax.Array:
+    """Bird's Eye View image ``[W*W, *B]`` (cell ``x + W*y``): keepers 1.0, takers -1.0, cells strictly
+    between the holder and each teammate +0.3 and each taker -0.3; values add, then clip to [-1, 1].
+
+    The straight path between two cells is the digital line ``S + round(i * (A - S) / n)``, ``i = 1 ..
+    n-1``, with ``n`` their Chebyshev distance and halves rounded up.
+    """
+    w = config.field_size
+    bshape = state.holder.shape
+    cells = jnp.arange(w * w, dtype=jnp.int32).reshape((w * w,) + (1,) * len(bshape))
+    gx, gy = cells % w, cells // w
+    h = _holder(state)
+    sx, sy = pick(state.keeper_x, h), pick(state.keeper_y, h)
+    img = jnp.zeros((w * w,) + bshape, jnp.float32)
+
+    def on_path(ax, ay):
+        dx, dy = ax - sx, ay - sy
+        n = jnp.maximum(jnp.maximum(jnp.abs(dx), jnp.abs(dy)), 1)
+        x_major = jnp.abs(dx) >= jnp.abs(dy)
+        i = jnp.where(x_major, (gx - sx) * jnp.sign(dx), (gy - sy) * jnp.sign(dy))
+        other = jnp.where(x_major, sy + jnp.floor_divide(2 * i * dy + n, 2 * n),
+                          sx + jnp.floor_divide(2 * i * dx + n, 2 * n))
+        hit = jnp.where(x_major, gy == other, gx == other)
+        return hit & (i >= 1) & (i <= n - 1)
+
+    for i in range(config.n_keepers):
+        ax, ay = state.keeper_x[i], state.keeper_y[i]
+        img = img + jnp.where((gx == ax) & (gy == ay), BEV_KEEPER, 0.0)
+        img = img + jnp.where(on_path(ax, ay) & (h != i), BEV_PATH_KEEPER, 0.0)
+    for j in range(config.n_takers):
+        ax, ay = state.taker_x[j], state.taker_y[j]
+        img = img + jnp.where((gx == ax) & (gy == ay), BEV_TAKER, 0.0)
+        img = img + jnp.where(on_path(ax, ay), BEV_PATH_TAKER, 0.0)
+    return jnp.clip(img, -1.0, 1.0)
+
+
+def decode_bev(outputs: jax.Array, state: State, config: KeepAwayConfig, literal: bool = False) -> jax.Array:
+    """Substrate outputs ``[W*W, *B]`` to a keeper index.
+
+    Default: compare the outputs at the holder's cell (hold) and at each teammate's cell; the largest
+    wins, ties go to hold, then to the lower index. ``literal``: the paper's wording, the largest output
+    anywhere on the layer, passing to the keeper nearest that cell (squared distance, holder first,
+    then lower index), which holds if that keeper is the holder.
+    """
+    w = config.field_size
+    h = _holder(state)
+    kc = state.keeper_x + w * state.keeper_y  # [K, *B]
+    if literal:
+        best = jnp.argmax(outputs, axis=0).astype(jnp.int32)
+        bx, by = best % w, best // w
+        d2 = (state.keeper_x - bx) ** 2 + (state.keeper_y - by) ** 2
+        d2 = jnp.where(_col(config.n_keepers, h.ndim) == h, 2 * d2 - 1, 2 * d2)  # holder wins ties
+        return jnp.argmin(d2, axis=0).astype(jnp.int32)
+    vals = jnp.take_along_axis(outputs, kc, axis=0)  # [K, *B]
+    best_v, best_i = pick(vals, h), h
+    for i in range(config.n_keepers):
+        better = (vals[i] > best_v) & (h != i)
+        best_v, best_i = jnp.where(better, vals[i], best_v), jnp.where(better, i, best_i)
+    return best_i.astype(jnp.int32)

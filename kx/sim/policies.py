@@ -1,0 +1,131 @@
+"""Hand-coded baseline policies and a small fixed-topology neural policy.
+
+A *policy* is ``apply(params, state, key) -> action``: ``params`` a pytree whose leaves are batch-last
+like the state (one parameter set per episode lane; ``None`` for parameter-free policies), ``state``
+a :class:`~kx.sim.types.State`, ``key`` a PRNG key array (``[*B]`` keys; only stochastic policies read
+it), ``action`` a keeper index per episode (the holder's own index holds). :class:`Policy` bundles
+``apply`` with whether it needs keys, so that the evaluator derives them only when they are used.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+from kx.sim import geometry as geo
+from kx.sim import observe
+from kx.sim.env import _col, pick
+from kx.sim.types import KeepAwayConfig, State
+
+PolicyApply = Callable[[Any, State, jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class Policy:
+    """A policy for the evaluator: ``apply(params, state, key) -> action``."""
+
+    name: str
+    apply: PolicyApply
+    stochastic: bool = False
+
+
+@functools.lru_cache(maxsize=None)
+def always_hold(config: KeepAwayConfig) -> Policy:
+    return Policy("hold", lambda params, state, key: jnp.maximum(state.holder, 0))
+
+
+@functools.lru_cache(maxsize=None)
+def random_policy(config: KeepAwayConfig) -> Policy:
+    """Uniform over the K actions: hold or pass to any one teammate."""
+
+    def apply(params, state, key):
+        draw = jax.vmap(lambda k: jax.random.randint(k, (), 0, config.n_keepers, dtype=jnp.int32))
+        flat = draw(key.reshape(-1))
+        return flat.reshape(state.holder.shape)
+
+    return Policy("random", apply, stochastic=True)
+
+
+@functools.lru_cache(maxsize=None)
+def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.0) -> Policy:
+    """Hold until a taker is within ``threshold`` king moves, then pass to the most open teammate.
+
+    Openness of a teammate is the margin by which the takers miss its pass: along the straight pass
+    from the holder H in unit direction u, a taker at T is ``cheb(T, H + s u)`` king moves from the
+    ball when the ball has travelled s cells, and has made about ``s / 2`` moves by then (ball speed 2,
+    agent speed 1). The margin is ``min over takers and s in [0, |pass|] of cheb(T, H + s u) - s / 2``,
+    computed exactly: the function is convex and piecewise linear in s, so its minimum lies at one of
+    at most six breakpoints. The holder passes to the teammate with the largest margin if that margin
+    is at least ``min_margin``, and holds otherwise.
+    """
+    speed_ratio = config.agent_speed / config.ball_speed
+
+    def apply(params, state, key):
+        h = jnp.maximum(state.holder, 0)
+        kx, ky, tx, ty = state.keeper_x, state.keeper_y, state.taker_x, state.taker_y
+        hx, hy = pick(kx, h), pick(ky, h)
+        pressed = jnp.min(geo.cheb(tx, ty, hx, hy), axis=0) <= threshold
+        dx, dy = (kx - hx).astype(jnp.float32), (ky - hy).astype(jnp.float32)  # [K, *B]
+        length = jnp.sqrt(dx * dx + dy * dy)
+        inv = 1.0 / jnp.maximum(length, 1e-6)
+        ux, uy = dx * inv, dy * inv
+        margin = jnp.full(kx.shape, jnp.inf, jnp.float32)
+        for j in range(config.n_takers):
+            a = (tx[j] - hx).astype(jnp.float32)
+            b = (ty[j] - hy).astype(jnp.float32)
+
+            def f(s):
+                return jnp.maximum(jnp.abs(a - s * ux), jnp.abs(b - s * uy)) - speed_ratio * s
+
+            def at(num, den):  # a breakpoint num/den clipped to the pass, or 0 if undefined
+                ok = jnp.abs(den) > 1e-6
+                return jnp.clip(jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0), 0.0, length)
+
+            m = jnp.minimum(f(jnp.zeros_like(length)), f(length))
+            for s in (at(a, ux), at(b, uy), at(a - b, ux - uy), at(a + b, ux + uy)):
+                m = jnp.minimum(m, f(s))
+            margin = jnp.minimum(margin, m)
+        margin = jnp.where(_col(config.n_keepers, h.ndim) == h, -jnp.inf, margin)
+        target = jnp.argmax(margin, axis=0).astype(jnp.int32)
+        safe = jnp.max(margin, axis=0) >= min_margin
+        return jnp.where(pressed & safe, target, h)
+
+    return Policy("heuristic", apply)
+
+
+# ------------------------------------------------------------------------------ small neural policy
+
+
+def mlp_init(key: jax.Array, n: int, config: KeepAwayConfig, hidden: int = 8, layout: str = "fixed"):
+    """``n`` random parameter sets of an ``inputs -> hidden (tanh) -> outputs`` network, leading axis n."""
+    n_in, n_out = observe.n_inputs(layout, config), observe.n_outputs(layout, config)
+    k1, k2 = jax.random.split(key)
+    return {
+        "w1": jax.random.normal(k1, (n, n_in, hidden)) / math.sqrt(n_in),
+        "b1": jnp.zeros((n, hidden)),
+        "w2": jax.random.normal(k2, (n, hidden, n_out)) / math.sqrt(hidden),
+        "b2": jnp.zeros((n, n_out)),
+    }
+
+
+@functools.lru_cache(maxsize=None)
+def mlp_policy(config: KeepAwayConfig, layout: str = "fixed") -> Policy:
+    """A fixed-topology network on the ``fixed`` or ``full`` layout; params batch-last
+    (``w1 [in, hidden, *B]`` ...)."""
+    obs_fn = {"fixed": observe.fixed_obs, "full": observe.full_obs}[layout]
+
+    def apply(params, state, key):
+        x = obs_fn(state, config)  # [in, *B]
+        hid = jnp.tanh(jnp.sum(x[:, None] * params["w1"], axis=0) + params["b1"])
+        out = jnp.sum(hid[:, None] * params["w2"], axis=0) + params["b2"]
+        return observe.decode_ranked(out, state, config)
+
+    return Policy(f"mlp-{layout}", apply)
+
+
+BASELINES = {"hold": always_hold, "random": random_policy, "heuristic": heuristic}
