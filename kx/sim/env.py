@@ -209,7 +209,7 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     ox, oy = kx, ky
     for _ in range(spd):
         ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, config)
-    ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd)
+    ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd, w)
     is_int = flying & (kid == interceptor)
     is_holder = kid == holder
     nkx = jnp.where(is_holder, kx, jnp.where(is_int, ix, ox))
@@ -394,7 +394,7 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origi
         goal_y = jnp.where(chaser, chase_y, mark_y)
     else:
         goal_x, goal_y = chase_x, chase_y
-    return geo.toward(tx, ty, goal_x, goal_y, spd)
+    return geo.toward(tx, ty, goal_x, goal_y, spd, config.field_size)
 
 
 def _dispersion_q(kx, ky, config: KeepAwayConfig):

@@ -62,8 +62,8 @@ def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
 
 
 def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id: jax.Array,
-                   key: jax.Array, params: KeepAwayParams, *, policy: Policy, config: KeepAwayConfig,
-                   chunk: int, unroll: int):
+                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, *, policy: Policy,
+                   config: KeepAwayConfig, unroll: int):
     """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early when all have finished.
 
     The loop checks for the end every ``unroll`` iterations (a finished episode is left unchanged by
@@ -97,15 +97,15 @@ def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id:
     return state, steps[None], jnp.sum(~state.done)[None]
 
 
-@functools.partial(jax.jit, static_argnames=("policy", "config", "chunk", "unroll", "n_dev"))
-def _advance(state, lane_params, trial_id, lane_id, key, params, *, policy, config, chunk, unroll,
+@functools.partial(jax.jit, static_argnames=("policy", "config", "unroll", "n_dev"))
+def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, *, policy, config, unroll,
              n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes have finished. Returns the state, the iterations each device ran
     ``[n_dev]`` and the live lanes on each ``[n_dev]``."""
-    local = functools.partial(_advance_local, policy=policy, config=config, chunk=chunk, unroll=unroll)
+    local = functools.partial(_advance_local, policy=policy, config=config, unroll=unroll)
     if n_dev == 1:
-        return local(state, lane_params, trial_id, lane_id, key, params)
+        return local(state, lane_params, trial_id, lane_id, key, params, chunk)
     mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
     lanes = jax.sharding.PartitionSpec(*([None] * 0), "lanes")
 
@@ -113,10 +113,10 @@ def _advance(state, lane_params, trial_id, lane_id, key, params, *, policy, conf
         return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
 
     rep = jax.sharding.PartitionSpec()
-    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params))
+    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params), rep)
     out_specs = (spec(state), lanes, lanes)
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
-        state, lane_params, trial_id, lane_id, key, params)
+        state, lane_params, trial_id, lane_id, key, params, chunk)
 
 
 @functools.partial(jax.jit, static_argnames=("width",))
@@ -135,6 +135,7 @@ def _record(results: EpisodeStats, state: State, lane_id, params: KeepAwayParams
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
              config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 64,
+             first_chunk: int = 8,
              unroll: int = 1, devices: int | None = None,
              counters: EvalCounters | None = None) -> EpisodeStats:
     """Runs every policy on every start state to the end of its episode.
@@ -145,7 +146,8 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       starts: T start states, batch-last (``[.., T]``), e.g. from :func:`kx.sim.env.reset_batch`.
       params, config: the world.
       key: needed for kick noise and stochastic policies.
-      chunk: iterations per compiled call between compactions.
+      chunk: the most iterations per compiled call between compactions; calls start at
+        ``first_chunk`` iterations and double, so that batches of short episodes compact early.
       unroll: iterations between checks for the end inside a call.
       devices: split the lanes over this many local devices (default: all). On a CPU, run with
         ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to get one device per core.
@@ -175,10 +177,12 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
                                policy_params)
     results = jax.tree.map(lambda a: a[..., :n], env.episode_stats(state, params, config))
     widths = [width]
+    this_chunk = max(1, min(first_chunk, chunk))
     while True:
         state, steps, n_live = _advance(state, lane_params, trial_id, lane_id, key, params,
-                                        policy=policy, config=config, chunk=chunk, unroll=unroll,
-                                        n_dev=n_dev)
+                                        jnp.int32(this_chunk), policy=policy, config=config,
+                                        unroll=unroll, n_dev=n_dev)
+        this_chunk = min(2 * this_chunk, chunk)
         n_live = int(jnp.sum(n_live))
         if counters is not None:
             counters.chunks += 1

@@ -78,9 +78,10 @@ def cheb(ax, ay, bx, by):
     return jnp.maximum(jnp.abs(ax - bx), jnp.abs(ay - by))
 
 
-def toward(x, y, tx, ty, speed: int):
-    """Up to ``speed`` king moves from (x, y) straight toward (tx, ty)."""
-    return x + jnp.clip(tx - x, -speed, speed), y + jnp.clip(ty - y, -speed, speed)
+def toward(x, y, tx, ty, speed: int, field_size: int):
+    """Up to ``speed`` king moves from (x, y) straight toward (tx, ty), staying inside the field."""
+    return (jnp.clip(x + jnp.clip(tx - x, -speed, speed), 0, field_size - 1),
+            jnp.clip(y + jnp.clip(ty - y, -speed, speed), 0, field_size - 1))
 
 
 def inside(x, y, field_size: int):

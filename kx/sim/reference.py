@@ -70,10 +70,11 @@ def sign(v: int) -> int:
     return (v > 0) - (v < 0)
 
 
-def step_toward(p, goal, speed: int):
+def step_toward(p, goal, speed: int, w: int):
+    """Up to ``speed`` king moves straight toward ``goal``, never leaving the field."""
     dx = max(-speed, min(speed, goal[0] - p[0]))
     dy = max(-speed, min(speed, goal[1] - p[1]))
-    return (p[0] + dx, p[1] + dy)
+    return (min(max(p[0] + dx, 0), w - 1), min(max(p[1] + dy, 0), w - 1))
 
 
 def inside(p, w: int) -> bool:
@@ -179,7 +180,7 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
         if i == s.holder:
             moved.append(k)
         elif i == interceptor:
-            moved.append(step_toward(k, aim, cfg.agent_speed))
+            moved.append(step_toward(k, aim, cfg.agent_speed, w))
         else:
             p = k
             for _ in range(cfg.agent_speed):
@@ -213,7 +214,7 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
         for m, j in enumerate(markers):
             k = s.keepers[ranked[m % len(ranked)]]
             goals[j] = ((ball_now[0] + k[0]) // 2, (ball_now[1] + k[1]) // 2)
-    s.takers = [step_toward(t, goals[j], cfg.agent_speed) for j, t in enumerate(s.takers)]
+    s.takers = [step_toward(t, goals[j], cfg.agent_speed, w) for j, t in enumerate(s.takers)]
 
     # 5. Ball flight.
     if flying:

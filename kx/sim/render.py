@@ -61,10 +61,10 @@ def render_gif(arrays: dict, config: KeepAwayConfig, path: str | pathlib.Path, *
     last = int(np.argmax(done)) if done.any() else len(done) - 1
     n = min(last + 1, max_frames)
     frames = [frame(arrays, i, config, cell) for i in range(n)]
-    frames += [frames[-1]] * fps  # hold the last frame for a second
+    durations = [int(1000 / fps)] * (n - 1) + [1500]  # hold the last frame
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=durations, loop=0)
     return path
 
 

@@ -1,0 +1,45 @@
+import os
+
+os.environ.setdefault("KX_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "jax-cache"))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from kx.sim.types import KeepAwayConfig, KeepAwayParams, State  # noqa: E402
+
+jax.config.update("jax_compilation_cache_dir", os.environ["KX_CACHE_DIR"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+TASKS = ("3v2", "4v3", "5v3", "6v4")
+
+
+def make_state(keepers, takers, holder, **kw) -> State:
+    """A single-episode state from cell lists (ball on the holder)."""
+    i32 = lambda v: jnp.asarray(v, jnp.int32)  # noqa: E731
+    hx, hy = keepers[holder]
+    fields = dict(
+        keeper_x=i32([k[0] for k in keepers]), keeper_y=i32([k[1] for k in keepers]),
+        taker_x=i32([t[0] for t in takers]), taker_y=i32([t[1] for t in takers]),
+        holder=i32(holder), ball_x=i32(hx), ball_y=i32(hy), origin_x=i32(hx), origin_y=i32(hy),
+        dir_x=i32(1), dir_y=i32(0), substep=i32(0), kicker=i32(-1), receiver=i32(-1), t=i32(0),
+        done=jnp.asarray(False), reason=i32(0), passes=i32(0), dispersion_sum=i32(0),
+        ball_centre_sum=i32(0))
+    fields.update({k: (jnp.asarray(v) if k == "done" else i32(v)) for k, v in kw.items()})
+    return State(**fields)
+
+
+@pytest.fixture
+def cfg32() -> KeepAwayConfig:
+    return KeepAwayConfig()
+
+
+@pytest.fixture
+def params() -> KeepAwayParams:
+    return KeepAwayParams()
+
+
+def np_tree(state):
+    """A state's fields as a dict of numpy arrays."""
+    return {f: np.asarray(getattr(state, f)) for f in state.__dataclass_fields__}

@@ -1,0 +1,63 @@
+"""The JAX step against the plain-Python reference, exactly, over random episodes of every task."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from conftest import TASKS
+
+from kx.sim import env
+from kx.sim import reference as ref
+from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+_step = jax.jit(env.transition, static_argnames=("config",))
+
+
+def run_against_reference(task, n_episodes, seed, max_iterations=400, noise_deg=0.0, delay=1,
+                          pass_prob=0.3):
+    cfg = KeepAwayConfig.from_task(task)
+    params = KeepAwayParams(max_iterations=max_iterations, kick_noise_deg=noise_deg,
+                            taker_reaction_delay=delay)
+    state = env.reset_batch(jax.random.key(seed), n_episodes, params, cfg)
+    arrays = env.as_numpy(state)
+    refs = [ref.RefState.from_arrays({k: v[..., b] for k, v in arrays.items()}) for b in range(n_episodes)]
+    rng = np.random.default_rng(seed)
+    s_max = int(env.noise_limit(noise_deg))
+    checked = 0
+    for _ in range(max_iterations):
+        act = rng.integers(0, cfg.n_keepers, n_episodes)
+        act = np.where(rng.random(n_episodes) < pass_prob, act, arrays["holder"]).astype(np.int32)
+        noise = rng.integers(-s_max, s_max + 1, n_episodes).astype(np.int32)
+        state = _step(state, jnp.asarray(act), jnp.asarray(noise), params, config=cfg)
+        arrays = env.as_numpy(state)
+        for b in range(n_episodes):
+            if refs[b].done:
+                continue
+            refs[b] = ref.step(refs[b], int(act[b]), int(noise[b]), cfg, max_iterations, delay)
+            checked += 1
+            for k, v in refs[b].as_dict().items():
+                assert np.array_equal(np.asarray(v), arrays[k][..., b]), (
+                    f"{task} episode {b} iteration {refs[b].t}: {k} reference {v} jax {arrays[k][..., b]}")
+        if arrays["done"].all():
+            break
+    return checked, arrays
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_jax_step_equals_reference(task):
+    checked, arrays = run_against_reference(task, 40, seed=11)
+    assert checked > 200
+    assert len(np.unique(arrays["reason"])) >= 2  # several endings were exercised
+
+
+def test_equals_reference_with_kick_noise_and_no_delay():
+    run_against_reference("4v3", 30, seed=12, noise_deg=25.0)
+    run_against_reference("3v2", 30, seed=13, delay=0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", TASKS)
+def test_jax_step_equals_reference_1000_episodes(task):
+    checked, _ = run_against_reference(task, 1000, seed=100 + TASKS.index(task), max_iterations=4500,
+                                       pass_prob=0.15)
+    assert checked > 10_000
