@@ -39,6 +39,7 @@ OPEN_MATE_W, OPEN_MATE_CAP = 2, 4  # distance from the nearest teammate (anti-cr
 OPEN_LANE_W = 6  # no taker within sqrt(2) cells of the straight lane from the ball
 OPEN_FAR, OPEN_NEAR, OPEN_RANGE_W = 8, 3, 3  # stay within [NEAR, FAR] king moves of the ball
 OPEN_EDGE_W = 4  # avoid the outermost ring of cells
+MARK_DISTANCE = 2  # a marker stands this many king moves from its keeper, toward the ball (calibrated)
 LANE_CONE = 2  # a taker blocks a lane within atan(1/2) = 26.6 degrees of it (calibrated)
 _INFEASIBLE = 1 << 20
 
@@ -370,7 +371,8 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origi
     chase_x = jnp.where(flying, jnp.where(can_cut, cut_x, tgt_x), ball_x)
     chase_y = jnp.where(flying, jnp.where(can_cut, cut_y, tgt_y), ball_y)
     # Markers: the m-th marker (by rank) takes the m-th most open keeper (openness: distance to the
-    # nearest chaser), excluding the keeper at the ball, and stands mid-lane between ball and keeper.
+    # nearest chaser), excluding the keeper at the ball, and stands in its lane MARK_DISTANCE king
+    # moves from it toward the ball.
     if nt > config.n_chasers:
         ball_keeper = jnp.where(flying, interceptor, holder)
         big = 4 * config.field_size
@@ -389,7 +391,8 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origi
         match = k_rank[None] == m_rank[:, None]  # [T, K, *B]
         mk_x = jnp.sum(jnp.where(match, kx[None], 0), axis=1)
         mk_y = jnp.sum(jnp.where(match, ky[None], 0), axis=1)
-        mark_x, mark_y = (ball_x + mk_x) // 2, (ball_y + mk_y) // 2
+        mark_x = mk_x + jnp.clip(ball_x - mk_x, -MARK_DISTANCE, MARK_DISTANCE)
+        mark_y = mk_y + jnp.clip(ball_y - mk_y, -MARK_DISTANCE, MARK_DISTANCE)
         goal_x = jnp.where(chaser, chase_x, mark_x)
         goal_y = jnp.where(chaser, chase_y, mark_y)
     else:

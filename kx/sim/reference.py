@@ -213,7 +213,8 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
         ranked = sorted(openness, key=lambda i: (-openness[i], i))
         for m, j in enumerate(markers):
             k = s.keepers[ranked[m % len(ranked)]]
-            goals[j] = ((ball_now[0] + k[0]) // 2, (ball_now[1] + k[1]) // 2)
+            # in the keeper's passing lane, two king moves from it toward the ball
+            goals[j] = (k[0] + max(-2, min(2, ball_now[0] - k[0])), k[1] + max(-2, min(2, ball_now[1] - k[1])))
     s.takers = [step_toward(t, goals[j], cfg.agent_speed, w) for j, t in enumerate(s.takers)]
 
     # 5. Ball flight.
