@@ -53,6 +53,12 @@ def test_pack_roundtrip():
     np.testing.assert_array_equal(py, y)
 
 
+def test_round_scaled_sqrt_equals_float64_tables():
+    n = jnp.arange(len(geo.dist_table()), dtype=jnp.int32)
+    np.testing.assert_array_equal(jax.jit(lambda n: geo.round_scaled_sqrt(n, 32))(n), geo.dist_table())
+    np.testing.assert_array_equal(jax.jit(lambda n: geo.round_scaled_sqrt(n, 16))(n), geo.half_dist_table())
+
+
 def test_distance_tables():
     t = geo.dist_table()
     assert t[0] == 0 and t[1] == 32 and t[2] == round(32 * math.sqrt(2)) and t[25] == 160

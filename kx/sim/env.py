@@ -209,7 +209,8 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     # 3b. Keepers move: the holder stays, the interceptor runs to its cell, the rest get open.
     ox, oy = kx, ky
     for _ in range(spd):
-        ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, config)
+        ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, jnp.where(flying, interceptor, holder),
+                           config)
     ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd, w)
     is_int = flying & (kid == interceptor)
     is_holder = kid == holder
@@ -233,9 +234,11 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     reason = state.reason
     ball_x, ball_y = jnp.where(holder >= 0, hold_x, bx), jnp.where(holder >= 0, hold_y, by)
     in_air = flying
+    l2 = dir_x * dir_x + dir_y * dir_y
+    inv = geo.inv_sqrt(l2)
     for _ in range(bspd):
         k = substep + 1
-        cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, k)
+        cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, k, l2, inv)
         out = in_air & ~geo.inside(cx, cy, w)
         cut = in_air & ~out & any0((ntx == cx) & (nty == cy))
         on_k = (nkx == cx) & (nky == cy) & (kid != kicker)
@@ -289,9 +292,11 @@ def _plan_interception(px, py, origin_x, origin_y, dir_x, dir_y, substep, config
     """
     k0 = substep
     kmax = max_substep(config)
-    kp = geo.projection_substep(px, py, origin_x, origin_y, dir_x, dir_y)
+    l2 = dir_x * dir_x + dir_y * dir_y
+    inv = geo.inv_sqrt(l2)
+    kp = geo.projection_substep(px, py, origin_x, origin_y, dir_x, dir_y, l2, inv)
     kt = jnp.clip(kp, k0 + 1, jnp.maximum(k0 + 1, kmax))
-    cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, kt)
+    cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, kt, l2, inv)
     reach = geo.cheb(px, py, cx, cy)
     moves = ((kt - k0 + config.ball_speed - 1) // config.ball_speed) * config.agent_speed
     ok = geo.inside(cx, cy, config.field_size) & (reach <= moves)
@@ -299,54 +304,79 @@ def _plan_interception(px, py, origin_x, origin_y, dir_x, dir_y, substep, config
     return geo.pack(cx, cy), key
 
 
-def _get_open(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, config: KeepAwayConfig):
-    best_m = fenced(functools.partial(_get_open_move, config=config), kx, ky, snap_kx, snap_ky, tx, ty,
-                     ref_x, ref_y)
+def _get_open(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, skip, config: KeepAwayConfig):
+    """Every keeper's get-open move, computed only for the K-1 keepers other than ``skip [*B]`` (the
+    holder, or the interceptor while a pass flies), whose move is decided elsewhere."""
+    nk = config.n_keepers
+    bnd = kx.ndim - 1
+    rows = _col(nk - 1, bnd)
+    idx = rows + (rows >= skip).astype(jnp.int32)  # [K-1, *B] keeper index of each row
+    rx = jnp.stack([pick(kx, idx[r]) for r in range(nk - 1)])
+    ry = jnp.stack([pick(ky, idx[r]) for r in range(nk - 1)])
+    best_m = fenced(functools.partial(_get_open_move, config=config), rx, ry, idx, snap_kx, snap_ky, tx, ty,
+                    ref_x, ref_y)
+    kid = _col(nk, bnd)
+    own = pick(best_m, jnp.clip(kid - (kid > skip).astype(jnp.int32), 0, nk - 2))  # [K, *B]
+    own = jnp.where(kid == skip, 0, own)
     mx, my = jnp.zeros_like(kx), jnp.zeros_like(ky)
     for i, (dx, dy) in enumerate(geo.MOVES.tolist()):
-        mx, my = jnp.where(best_m == i, dx, mx), jnp.where(best_m == i, dy, my)
+        mx, my = jnp.where(own == i, dx, mx), jnp.where(own == i, dy, my)
     return kx + mx, ky + my
 
 
-def _get_open_move(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, config: KeepAwayConfig):
-    """Every keeper's best king move (or stay) by the integer get-open score; see docs/simulator.md.
+def _get_open_move(kx, ky, self_id, snap_kx, snap_ky, tx, ty, ref_x, ref_y, config: KeepAwayConfig):
+    """Index into ``geo.MOVES`` of the best move of keepers at ``kx, ky [n, *B]`` (keeper indices
+    ``self_id [n, *B]``), by the get-open score.
 
-    ``kx, ky [K, *B]`` are the positions being improved; teammates are seen at ``snap_k*``. Written
-    as an unrolled running best over the 9 candidates (elementwise only), which XLA fuses into one
-    vectorised loop; an ``argmax`` over a small leading axis does not vectorise on CPU.
+    Written incrementally over the 9 candidates: Chebyshev distances are separable (``|dx|`` for the
+    three x-offsets and ``|dy|`` for the three y-offsets, then a max per candidate) and the lane
+    test's dot and cross products are linear in the move; all elementwise, so XLA fuses it into one
+    vectorised loop (an ``argmax`` over a short leading axis does not vectorise on CPU).
     """
     w, nk, nt = config.field_size, config.n_keepers, config.n_takers
-    kid = _col(nk, kx.ndim - 1)
+    offs = (-1, 0, 1)
+
+    def sep_abs(a, b):  # |a + o - b| for o in offs
+        d = a - b
+        return {o: jnp.abs(d + o) for o in offs}
+
+    v0x, v0y = kx - ref_x, ky - ref_y
+    takers = []
+    for j in range(nt):
+        wx, wy = tx[j] - ref_x, ty[j] - ref_y
+        takers.append((sep_abs(kx, tx[j]), sep_abs(ky, ty[j]), wx, wy, v0x * wx + v0y * wy,
+                       v0x * wy - v0y * wx))
+    mates = [(sep_abs(kx, snap_kx[m]), sep_abs(ky, snap_ky[m]), self_id == m) for m in range(nk)]
+    ball_x, ball_y = sep_abs(kx, ref_x), sep_abs(ky, ref_y)
+    vv0 = v0x * v0x + v0y * v0y
     best_s = best_m = None
-    m_index = 0
-    for mx, my in geo.MOVES.tolist():
-        cx, cy = kx + mx, ky + my  # [K, *B]
-        d_taker = jnp.full(cx.shape, OPEN_TAKER_CAP, jnp.int32)
-        open_lane = jnp.ones(cx.shape, bool)
-        vx, vy = cx - ref_x, cy - ref_y
-        vv = vx * vx + vy * vy
-        for j in range(nt):
-            d_taker = jnp.minimum(d_taker, geo.cheb(cx, cy, tx[j], ty[j]))
-            wx, wy = tx[j] - ref_x, ty[j] - ref_y
-            dot = vx * wx + vy * wy
-            cross = vx * wy - vy * wx
-            open_lane = open_lane & ~((dot > 0) & (dot < vv) & (LANE_CONE * jnp.abs(cross) <= dot))
-        d_mate = jnp.full(cx.shape, OPEN_MATE_CAP, jnp.int32)
-        for m in range(nk):
-            d = geo.cheb(cx, cy, snap_kx[m], snap_ky[m])
-            d_mate = jnp.minimum(d_mate, jnp.where(kid == m, OPEN_MATE_CAP, d))
-        d_ball = geo.cheb(cx, cy, ref_x, ref_y)
+    for m_index, (mx, my) in enumerate(geo.MOVES.tolist()):
+        d_taker = None
+        open_lane = None
+        vv = vv0 + 2 * (mx * v0x + my * v0y) + (mx * mx + my * my)
+        for ax, ay, wx, wy, dot0, cross0 in takers:
+            d = jnp.maximum(ax[mx], ay[my])
+            d_taker = d if d_taker is None else jnp.minimum(d_taker, d)
+            dot = dot0 + (mx * wx + my * wy)
+            cross = cross0 + (mx * wy - my * wx)
+            blocked = (dot > 0) & (dot < vv) & (LANE_CONE * jnp.abs(cross) <= dot)
+            open_lane = ~blocked if open_lane is None else open_lane & ~blocked
+        d_mate = jnp.full(kx.shape, OPEN_MATE_CAP, jnp.int32)
+        for ax, ay, is_self in mates:
+            d_mate = jnp.minimum(d_mate, jnp.where(is_self, OPEN_MATE_CAP, jnp.maximum(ax[mx], ay[my])))
+        d_ball = jnp.maximum(ball_x[mx], ball_y[my])
+        cx, cy = kx + mx, ky + my
         edge = (cx == 0) | (cy == 0) | (cx == w - 1) | (cy == w - 1)
-        score = (OPEN_TAKER_W * d_taker + OPEN_MATE_W * d_mate + OPEN_LANE_W * open_lane
+        score = (OPEN_TAKER_W * jnp.minimum(d_taker, OPEN_TAKER_CAP) + OPEN_MATE_W * d_mate
+                 + OPEN_LANE_W * open_lane
                  - OPEN_RANGE_W * (jnp.maximum(d_ball - OPEN_FAR, 0) + jnp.maximum(OPEN_NEAR - d_ball, 0))
                  - OPEN_EDGE_W * edge)
         if best_s is None:  # staying is always inside the field
-            best_s, best_m = score, jnp.zeros(cx.shape, jnp.int32)
+            best_s, best_m = score, jnp.zeros(kx.shape, jnp.int32)
         else:
             better = geo.inside(cx, cy, w) & (score > best_s)  # strict: the earlier move wins ties
             best_s = jnp.where(better, score, best_s)
             best_m = jnp.where(better, m_index, best_m)
-        m_index += 1
     return best_m
 
 
@@ -401,13 +431,12 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origi
 
 
 def _dispersion_q(kx, ky, config: KeepAwayConfig):
-    """Sum over keeper pairs of ``DIST_SCALE * distance`` (integer, table lookup)."""
-    table = jnp.asarray(geo.dist_table())
+    """Sum over keeper pairs of ``DIST_SCALE * distance``, each rounded (exact integers)."""
     total = jnp.zeros(kx.shape[1:], jnp.int32)
     for i in range(config.n_keepers):
         for j in range(i + 1, config.n_keepers):
             dx, dy = kx[i] - kx[j], ky[i] - ky[j]
-            total = total + table[dx * dx + dy * dy]
+            total = total + geo.round_scaled_sqrt(dx * dx + dy * dy, DIST_SCALE)
     return total
 
 
@@ -415,8 +444,8 @@ def _ball_centre_q(bx, by, config: KeepAwayConfig):
     """``DIST_SCALE * distance`` from the ball's cell (clipped into the field) to the field centre."""
     w = config.field_size
     cx, cy = jnp.clip(bx, 0, w - 1), jnp.clip(by, 0, w - 1)
-    ux, uy = 2 * cx - (w - 1), 2 * cy - (w - 1)
-    return jnp.asarray(geo.half_dist_table())[ux * ux + uy * uy]
+    ux, uy = 2 * cx - (w - 1), 2 * cy - (w - 1)  # doubled coordinates relative to the centre
+    return geo.round_scaled_sqrt(ux * ux + uy * uy, DIST_SCALE // 2)
 
 
 # -------------------------------------------------------------------------------------- statistics

@@ -26,13 +26,21 @@ MOVES = np.array(
 )
 
 
-def round_div_sqrt(a, l2):
+def inv_sqrt(l2):
+    """``1 / sqrt(l2)`` in float32: the first guess of :func:`round_div_sqrt` for a given ``l2``."""
+    return 1.0 / jnp.sqrt(l2.astype(jnp.float32))
+
+
+def round_div_sqrt(a, l2, inv=None):
     """``round(a / sqrt(l2))`` exactly, for integer ``a >= 0`` and ``l2 >= 1`` (int32 arrays).
 
-    Needs ``4 a^2`` and ``(2n+1)^2 l2`` below 2^31, which the callers guarantee by the field bound.
+    ``inv`` (optional) is :func:`inv_sqrt` of ``l2``, shared by callers that round many values with the
+    same ``l2``; it only seeds the guess, which the integer comparison then corrects, so the result
+    is exact either way. Needs ``4 a^2`` and ``(2n+1)^2 l2`` below 2^31, which the callers guarantee
+    by the field bound.
     """
-    af = a.astype(jnp.float32)
-    n = jnp.floor(af / jnp.sqrt(l2.astype(jnp.float32)) + 0.5).astype(jnp.int32)
+    inv = inv_sqrt(l2) if inv is None else inv
+    n = jnp.floor(a.astype(jnp.float32) * inv + 0.5).astype(jnp.int32)
     four_a2 = 4 * a * a
     # n is right iff (2n-1)^2 l2 <= 4a^2 < (2n+1)^2 l2 (no equality can occur, see module doc).
     n = jnp.where((n > 0) & ((2 * n - 1) ** 2 * l2 > four_a2), n - 1, n)
@@ -40,23 +48,37 @@ def round_div_sqrt(a, l2):
     return n
 
 
-def round_div_sqrt_signed(v, l2):
+def round_div_sqrt_signed(v, l2, inv=None):
     """``round(v / sqrt(l2))`` for any integer ``v`` (no ties, so the rounding is symmetric)."""
-    return jnp.sign(v) * round_div_sqrt(jnp.abs(v), l2)
+    return jnp.sign(v) * round_div_sqrt(jnp.abs(v), l2, inv)
 
 
-def pass_cell(origin_x, origin_y, dir_x, dir_y, k):
-    """Cell of the ball ``k`` unit sub-steps along a pass: ``origin + round(k * dir / |dir|)``."""
-    l2 = dir_x * dir_x + dir_y * dir_y
-    return (origin_x + round_div_sqrt_signed(k * dir_x, l2),
-            origin_y + round_div_sqrt_signed(k * dir_y, l2))
+def round_scaled_sqrt(n, scale: int):
+    """``round(scale * sqrt(n))`` exactly for integer ``n >= 0`` (no ties: a half would make sqrt(n)
+    rational, so an integer). Needs ``4 scale^2 n < 2^31``. Arithmetic, not a table: XLA CPU gathers
+    do not vectorise."""
+    q = jnp.floor(scale * jnp.sqrt(n.astype(jnp.float32)) + 0.5).astype(jnp.int32)
+    target = 4 * scale * scale * n  # compare (2q +- 1)^2 with (2 scale sqrt n)^2
+    q = jnp.where((2 * q + 1) ** 2 <= target, q + 1, q)
+    q = jnp.where((q > 0) & ((2 * q - 1) ** 2 > target), q - 1, q)
+    return q
 
 
-def projection_substep(px, py, origin_x, origin_y, dir_x, dir_y):
+def pass_cell(origin_x, origin_y, dir_x, dir_y, k, l2=None, inv=None):
+    """Cell of the ball ``k`` unit sub-steps along a pass: ``origin + round(k * dir / |dir|)``.
+
+    ``l2 = |dir|^2`` and ``inv = inv_sqrt(l2)`` may be passed when already computed."""
+    l2 = dir_x * dir_x + dir_y * dir_y if l2 is None else l2
+    inv = inv_sqrt(l2) if inv is None else inv
+    return (origin_x + round_div_sqrt_signed(k * dir_x, l2, inv),
+            origin_y + round_div_sqrt_signed(k * dir_y, l2, inv))
+
+
+def projection_substep(px, py, origin_x, origin_y, dir_x, dir_y, l2=None, inv=None):
     """Sub-step of the pass nearest to point ``p``: ``round(max(0, (p - origin) . dir) / |dir|)``."""
-    l2 = dir_x * dir_x + dir_y * dir_y
+    l2 = dir_x * dir_x + dir_y * dir_y if l2 is None else l2
     dot = (px - origin_x) * dir_x + (py - origin_y) * dir_y
-    return round_div_sqrt(jnp.maximum(dot, 0), l2)
+    return round_div_sqrt(jnp.maximum(dot, 0), l2, inv)
 
 
 # Packed cells: a heavy computation that yields a cell returns one int32 instead of an (x, y) pair,

@@ -75,6 +75,13 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
         inv = 1.0 / jnp.maximum(length, 1e-6)
         ux, uy = dx * inv, dy * inv
         margin = jnp.full(kx.shape, jnp.inf, jnp.float32)
+
+        def recip(den):  # 1/den where defined (the breakpoint exists), per teammate row
+            ok = jnp.abs(den) > 1e-6
+            return ok, 1.0 / jnp.where(ok, den, 1.0)
+
+        slopes = [recip(ux), recip(uy), recip(ux - uy), recip(ux + uy)]
+        zero = jnp.zeros_like(length)
         for j in range(config.n_takers):
             a = (tx[j] - hx).astype(jnp.float32)
             b = (ty[j] - hy).astype(jnp.float32)
@@ -82,13 +89,9 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
             def f(s):
                 return jnp.maximum(jnp.abs(a - s * ux), jnp.abs(b - s * uy)) - speed_ratio * s
 
-            def at(num, den):  # a breakpoint num/den clipped to the pass, or 0 if undefined
-                ok = jnp.abs(den) > 1e-6
-                return jnp.clip(jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0), 0.0, length)
-
-            m = jnp.minimum(f(jnp.zeros_like(length)), f(length))
-            for s in (at(a, ux), at(b, uy), at(a - b, ux - uy), at(a + b, ux + uy)):
-                m = jnp.minimum(m, f(s))
+            m = jnp.minimum(f(zero), f(length))
+            for num, (ok, r) in zip((a, b, a - b, a + b), slopes):
+                m = jnp.minimum(m, f(jnp.where(ok, jnp.clip(num * r, 0.0, length), 0.0)))
             margin = jnp.minimum(margin, m)
         margin = jnp.where(_col(config.n_keepers, h.ndim) == h, -jnp.inf, margin)
         target = jnp.argmax(margin, axis=0).astype(jnp.int32)
