@@ -14,7 +14,8 @@ PARAMS = KeepAwayParams(max_iterations=600)
 
 
 def test_width_ladder():
-    assert ev.width_ladder(4500) == [4500, 4096, 3072, 2048, 1536, 1024, 768, 512, 256, 128, 64]
+    assert ev.width_ladder(4500) == [4500, 4096, 3072, 2048, 1792, 1536, 1280, 1024, 896, 768, 640, 512, 256,
+                                     128, 64]
     assert ev.width_ladder(40) == [40]
     assert all(w % 2 == 0 for w in ev.width_ladder(4501, multiple=2))
 

@@ -166,10 +166,10 @@ def step(key: jax.Array, state: State, action: jax.Array, params: KeepAwayParams
 def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAwayParams,
                config: KeepAwayConfig) -> State:
     """:func:`step` with the kick noise given: a pass is rotated by ``atan(noise / 16)``."""
-    w, nk, nt = config.field_size, config.n_keepers, config.n_takers
+    w, nk = config.field_size, config.n_keepers
     spd, bspd = config.agent_speed, config.ball_speed
     bnd = state.holder.ndim
-    kid, tid = _col(nk, bnd), _col(nt, bnd)
+    kid = _col(nk, bnd)
     alive = ~state.done
     kx, ky, tx, ty = state.keeper_x, state.keeper_y, state.taker_x, state.taker_y
 
@@ -197,8 +197,12 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     flying = alive & (holder < 0)
 
     # 3a. Interception plan: each keeper aims at the pass cell nearest to it, ahead of the ball.
-    ik_code, ik_key = fenced(functools.partial(_plan_interception, config=config), kx, ky, origin_x,
-                              origin_y, dir_x, dir_y, substep)
+    # One plan for keepers and takers alike (rows 0..K-1 keepers, then takers), from their cells at
+    # the start of the iteration.
+    plan_code, plan_key = fenced(functools.partial(_plan_interception, config=config),
+                                 jnp.concatenate([kx, tx]), jnp.concatenate([ky, ty]), origin_x, origin_y,
+                                 dir_x, dir_y, substep)
+    ik_code, ik_key = plan_code[:nk], plan_key[:nk]
     ik_key = jnp.where(kid == kicker, 2 * _INFEASIBLE, ik_key)
     interceptor = argmin0(ik_key)
     tgt_x, tgt_y = geo.unpack(pick(ik_code, interceptor))
@@ -226,8 +230,8 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     ball_ref_x = jnp.where(flying, bx, hold_x)  # bx: the ball's cell before this iteration's flight
     ball_ref_y = jnp.where(flying, by, hold_y)
     ntx, nty = _takers_move(tx, ty, nkx, nky, jnp.where(flying, kicker, holder), seen,
-                            ball_ref_x, ball_ref_y, origin_x, origin_y, dir_x, dir_y, substep,
-                            interceptor, tgt_x, tgt_y, config)
+                            ball_ref_x, ball_ref_y, interceptor, tgt_x, tgt_y, plan_code[nk:],
+                            plan_key[nk:], config)
     ntx, nty = jnp.where(alive, ntx, tx), jnp.where(alive, nty, ty)
 
     # 5. Ball flight in unit sub-steps.
@@ -380,9 +384,11 @@ def _get_open_move(kx, ky, self_id, snap_kx, snap_ky, tx, ty, ref_x, ref_y, conf
     return best_m
 
 
-def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origin_y, dir_x, dir_y,
-                 substep, interceptor, tgt_x, tgt_y, config: KeepAwayConfig):
-    """Chasers (the ``n_chasers`` takers nearest the ball) go for the ball; markers cover lanes."""
+def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, interceptor, tgt_x, tgt_y, cut_code,
+                 cut_key, config: KeepAwayConfig):
+    """Chasers (the ``n_chasers`` takers nearest the ball) go for the ball; markers cover lanes.
+
+    ``cut_code, cut_key [T, *B]`` are the takers' interception plans for the pass in flight."""
     nk, nt, spd = config.n_keepers, config.n_takers, config.agent_speed
     bnd = tx.ndim - 1
     tid, kid = _col(nt, bnd), _col(nk, bnd)
@@ -394,8 +400,6 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, origin_x, origi
     chaser = rank < config.n_chasers
     # A chaser heads for the holder, or for its cut point of a pass if it can make it there in time,
     # else for the cell where the ball will be received.
-    cut_code, cut_key = fenced(functools.partial(_plan_interception, config=config), tx, ty, origin_x,
-                                origin_y, dir_x, dir_y, substep)
     cut_x, cut_y = geo.unpack(cut_code)
     can_cut = cut_key < _INFEASIBLE // 2
     chase_x = jnp.where(flying, jnp.where(can_cut, cut_x, tgt_x), ball_x)

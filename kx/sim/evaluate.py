@@ -1,9 +1,8 @@
 """Batched evaluation of G policies on T shared start states, paying only for live episodes.
 
 Every (policy, trial) pair is a *lane*; lanes are batch-last arrays stepped in lockstep by a jitted
-``while_loop`` of ``chunk`` iterations that stops early once every lane has finished. Between chunks the
-host counts the live lanes and, when they fit the next smaller size on a ladder of widths (powers of
-two), gathers them into that narrower batch. Each
+``while_loop`` that returns once the live lanes fit the next narrower width on a ladder of widths (or
+after ``chunk`` iterations); the host then gathers the live lanes into that narrower batch. Each
 width compiles once per (policy, task) and is reused across generations. A batch whose episodes end
 early therefore costs about what its live steps cost, and the results equal those of each episode run
 alone (lanes never interact; the tests check this).
@@ -40,9 +39,10 @@ class EvalCounters:
 
 def width_ladder(n: int, smallest: int = 64, multiple: int = 1) -> list[int]:
     """Batch widths, descending: ``n``, then powers of two below it down to ``smallest``, with 3/4 of
-    each power from 1024 up (long episodes of good teams make wide tails).
+    each power from 1024 up, and steps of 256 between 1024 and 2048 and of 128 between 512 and 1024
+    (good teams leave a long tail of full-length episodes; a close width wastes less on it).
 
-    Each width costs one compilation (a few seconds on CPU, then cached), so the ladder is coarse.
+    Each width costs one compilation (a few seconds on CPU, then cached), so the ladder stays coarse.
     Widths are rounded up to a ``multiple`` (the number of devices the lanes are split over).
     """
     sizes = {n}
@@ -52,6 +52,8 @@ def width_ladder(n: int, smallest: int = 64, multiple: int = 1) -> list[int]:
         if p >= 1024 and p * 3 // 4 < n:
             sizes.add(p * 3 // 4)
         p *= 2
+    sizes |= {w for w in range(1024 + 256, 2048, 256) if w < n}
+    sizes |= {w for w in range(512 + 128, 1024, 128) if w < n}
     sizes = {-(-w // multiple) * multiple for w in sizes}
     return sorted(sizes, reverse=True)
 
@@ -62,9 +64,10 @@ def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
 
 
 def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id: jax.Array,
-                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, *, policy: Policy,
-                   config: KeepAwayConfig, unroll: int):
-    """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early when all have finished.
+                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array, *,
+                   policy: Policy, config: KeepAwayConfig, unroll: int):
+    """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early once at most ``stop_at``
+    lanes are live (the next narrower batch width would hold them; 0: when all have finished).
 
     The loop checks for the end every ``unroll`` iterations (a finished episode is left unchanged by
     further steps, so overshooting is harmless and only costs lockstep work).
@@ -91,21 +94,23 @@ def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id:
 
     def cond(carry):
         state, i = carry
-        return (i < chunk) & ~jnp.all(state.done)
+        return (i < chunk) & (jnp.sum(~state.done, dtype=jnp.int32) > stop_at)
 
     state, steps = jax.lax.while_loop(cond, body, (state, jnp.zeros((), jnp.int32)))
-    return state, steps[None], jnp.sum(~state.done)[None]
+    # [1, 2]: iterations run and lanes still live, fetched by the host in one transfer
+    return state, jnp.stack([steps, jnp.sum(~state.done, dtype=jnp.int32)])[None]
 
 
 @functools.partial(jax.jit, static_argnames=("policy", "config", "unroll", "n_dev"))
-def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, *, policy, config, unroll,
-             n_dev):
+def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at, *, policy, config,
+             unroll, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
-    and stops when its own lanes have finished. Returns the state, the iterations each device ran
-    ``[n_dev]`` and the live lanes on each ``[n_dev]``."""
+    and stops when its own lanes are done or fit its share of the next narrower width (a global
+    count would need a collective every iteration, which measured slower). Returns the state and,
+    per device, the iterations it ran and its live lanes ``[n_dev, 2]``."""
     local = functools.partial(_advance_local, policy=policy, config=config, unroll=unroll)
     if n_dev == 1:
-        return local(state, lane_params, trial_id, lane_id, key, params, chunk)
+        return local(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at)
     mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
     lanes = jax.sharding.PartitionSpec(*([None] * 0), "lanes")
 
@@ -113,10 +118,12 @@ def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, *, polic
         return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
 
     rep = jax.sharding.PartitionSpec()
-    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params), rep)
-    out_specs = (spec(state), lanes, lanes)
+    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params), rep,
+                rep)
+    out_specs = (spec(state), jax.sharding.PartitionSpec("lanes", None))
+    # each device stops once its own live lanes fit its share of the narrower width
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
-        state, lane_params, trial_id, lane_id, key, params, chunk)
+        state, lane_params, trial_id, lane_id, key, params, chunk, stop_at // n_dev)
 
 
 @functools.partial(jax.jit, static_argnames=("width",))
@@ -134,8 +141,8 @@ def _record(results: EpisodeStats, state: State, lane_id, params: KeepAwayParams
 
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
-             config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 64,
-             first_chunk: int = 8,
+             config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 4096,
+             first_chunk: int = 64,
              unroll: int = 1, devices: int | None = None,
              counters: EvalCounters | None = None) -> EpisodeStats:
     """Runs every policy on every start state to the end of its episode.
@@ -146,8 +153,9 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       starts: T start states, batch-last (``[.., T]``), e.g. from :func:`kx.sim.env.reset_batch`.
       params, config: the world.
       key: needed for kick noise and stochastic policies.
-      chunk: the most iterations per compiled call between compactions; calls start at
-        ``first_chunk`` iterations and double, so that batches of short episodes compact early.
+      chunk: the most iterations per compiled call. A call also returns as soon as its live lanes
+        fit the next narrower width, so the batch narrows without waiting for the chunk to end; calls
+        start at ``first_chunk`` iterations and double.
       unroll: iterations between checks for the end inside a call.
       devices: split the lanes over this many local devices (default: all). On a CPU, run with
         ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to get one device per core.
@@ -179,14 +187,17 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     widths = [width]
     this_chunk = max(1, min(first_chunk, chunk))
     while True:
-        state, steps, n_live = _advance(state, lane_params, trial_id, lane_id, key, params,
-                                        jnp.int32(this_chunk), policy=policy, config=config,
-                                        unroll=unroll, n_dev=n_dev)
+        narrower = [w for w in ladder if w < width]
+        stop_at = np.int32(narrower[0] if narrower else 0)
+        state, progress = _advance(state, lane_params, trial_id, lane_id, key, params,
+                                   np.int32(this_chunk), stop_at, policy=policy, config=config,
+                                   unroll=unroll, n_dev=n_dev)
         this_chunk = min(2 * this_chunk, chunk)
-        n_live = int(jnp.sum(n_live))
+        progress = np.asarray(jax.device_get(progress))  # one host sync per call
+        n_live = int(progress[:, 1].sum())
         if counters is not None:
             counters.chunks += 1
-            counters.executed_steps += int(jnp.sum(steps)) * (width // n_dev)
+            counters.executed_steps += int(progress[:, 0].sum()) * (width // n_dev)
         if n_live == 0:
             break
         target = min(w for w in ladder if w >= n_live)
