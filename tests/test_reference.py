@@ -61,3 +61,17 @@ def test_jax_step_equals_reference_1000_episodes(task):
     checked, _ = run_against_reference(task, 1000, seed=100 + TASKS.index(task), max_iterations=4500,
                                        pass_prob=0.15)
     assert checked > 10_000
+
+
+def test_equals_reference_with_other_speeds_and_field():
+    """Non-default shapes: two king moves per iteration, a faster ball, a smaller field, 3 chasers."""
+    import kx.sim.types as types
+
+    orig = KeepAwayConfig.from_task
+    try:
+        KeepAwayConfig.from_task = classmethod(lambda cls, task: types.KeepAwayConfig(
+            n_keepers=4, n_takers=3, field_size=16, agent_speed=2, ball_speed=3, n_chasers=1))
+        checked, _ = run_against_reference("4v3", 30, seed=14, pass_prob=0.25)
+    finally:
+        KeepAwayConfig.from_task = orig
+    assert checked > 100

@@ -469,20 +469,25 @@ def episode_stats(state: State, params: KeepAwayParams, config: KeepAwayConfig) 
     mean pairwise keeper distance / the largest cell distance, mean ball distance from the centre /
     its largest value; both means over the iterations executed.
     """
-    lost = (state.reason == Reason.INTERCEPTED) | (state.reason == Reason.TACKLED) | (
-        state.reason == Reason.OUT_OF_FIELD)
-    survived = state.t - lost.astype(jnp.int32)
+    return stats_from_counts(state.t, state.reason, state.passes, state.dispersion_sum,
+                             state.ball_centre_sum, params, config)
+
+
+def stats_from_counts(t, reason, passes, dispersion_sum, ball_centre_sum, params: KeepAwayParams,
+                      config: KeepAwayConfig) -> EpisodeStats:
+    """:func:`episode_stats` from an episode's integer counters (all ``[*B]``)."""
+    lost = (reason == Reason.INTERCEPTED) | (reason == Reason.TACKLED) | (reason == Reason.OUT_OF_FIELD)
+    survived = t - lost.astype(jnp.int32)
     max_it = jnp.asarray(params.max_iterations, jnp.float32)
     fitness = survived.astype(jnp.float32) / max_it
-    steps = jnp.maximum(state.t, 1).astype(jnp.float32)
+    steps = jnp.maximum(t, 1).astype(jnp.float32)
     n_pairs = config.n_keepers * (config.n_keepers - 1) // 2
     _, diag, half = behaviour_bounds(config, params)
-    disp = state.dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * diag)
-    centre = state.ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * half)
-    passes = state.passes.astype(jnp.float32) / max_it
-    behaviour = jnp.stack([passes, jnp.minimum(disp, 1.0), jnp.minimum(centre, 1.0)])
-    return EpisodeStats(fitness=fitness, iterations=state.t, reason=state.reason, passes=state.passes,
-                        behaviour=behaviour)
+    disp = dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * diag)
+    centre = ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * half)
+    behaviour = jnp.stack([passes.astype(jnp.float32) / max_it, jnp.minimum(disp, 1.0),
+                           jnp.minimum(centre, 1.0)])
+    return EpisodeStats(fitness=fitness, iterations=t, reason=reason, passes=passes, behaviour=behaviour)
 
 
 def as_numpy(state: State) -> dict[str, np.ndarray]:

@@ -134,10 +134,20 @@ def _compact(state: State, lane_params: Any, trial_id, lane_id, *, width: int):
     return (jax.tree.map(take, state), jax.tree.map(take, lane_params), take(trial_id), take(lane_id))
 
 
+COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum")
+
+
+@jax.jit
+def _record(results: dict, state: State, lane_id):
+    """Stores the integer counters of every lane (finished lanes keep their final values)."""
+    return {f: r.at[lane_id].set(getattr(state, f)) for f, r in results.items()}
+
+
 @functools.partial(jax.jit, static_argnames=("config",))
-def _record(results: EpisodeStats, state: State, lane_id, params: KeepAwayParams, *, config):
-    stats = env.episode_stats(state, params, config)
-    return jax.tree.map(lambda r, s: r.at[..., lane_id].set(s), results, stats)
+def _finish(results: dict, params: KeepAwayParams, *, config):
+    # Normalised once, over all episodes, by one program: the floats do not depend on the batch
+    # widths or device split the episodes ran in.
+    return env.stats_from_counts(*(results[f] for f in COUNTERS), params, config)
 
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
@@ -183,7 +193,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
     lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
                                policy_params)
-    results = jax.tree.map(lambda a: a[..., :n], env.episode_stats(state, params, config))
+    results = {f: jnp.zeros(n, jnp.int32) for f in COUNTERS}
     widths = [width]
     this_chunk = max(1, min(first_chunk, chunk))
     while True:
@@ -202,12 +212,14 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
             break
         target = min(w for w in ladder if w >= n_live)
         if target < width:
-            results = _record(results, state, lane_id, params, config=config)
+            results = _record(results, state, lane_id)
             state, lane_params, trial_id, lane_id = _compact(state, lane_params, trial_id, lane_id,
                                                              width=target)
             width = target
             widths.append(width)
-    results = _record(results, state, lane_id, params, config=config)
+    # to the host first: counters left sharded over devices would compile a partitioned _finish
+    counts = jax.device_get(_record(results, state, lane_id))
+    results = _finish(counts, params, config=config)
     if counters is not None:
         counters.live_steps += int(jnp.sum(results.iterations))
         counters.widths = tuple(widths)
