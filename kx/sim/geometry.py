@@ -112,18 +112,16 @@ def inside(x, y, field_size: int):
 
 @functools.lru_cache(maxsize=None)
 def dist_table() -> np.ndarray:
-    """``DIST_SCALE * sqrt(n)`` rounded, for every integer ``n`` a squared cell distance can take.
-
-    Also used with ``n = (2x - (W-1))^2 + (2y - (W-1))^2`` and half the scale for the distance from a
-    cell to the field centre. Computed in float64 (correctly rounded sqrt, no ties), so the JAX code
-    and the reference read the same integers.
-    """
+    """``DIST_SCALE * sqrt(n)`` rounded, for every integer ``n`` a squared cell distance can take,
+    computed in float64 (correctly rounded sqrt, no ties): the oracle the tests hold
+    :func:`round_scaled_sqrt` to."""
     n = np.arange(2 * (2 * MAX_FIELD) ** 2 + 1, dtype=np.float64)
     return np.floor(DIST_SCALE * np.sqrt(n) + 0.5).astype(np.int32)
 
 
 @functools.lru_cache(maxsize=None)
 def half_dist_table() -> np.ndarray:
-    """``DIST_SCALE * sqrt(n) / 2`` rounded (distance to the centre from doubled coordinates)."""
+    """``DIST_SCALE * sqrt(n) / 2`` rounded (distance to the centre from doubled coordinates); a test
+    oracle like :func:`dist_table`."""
     n = np.arange(2 * (2 * MAX_FIELD) ** 2 + 1, dtype=np.float64)
     return np.floor(DIST_SCALE * np.sqrt(n) / 2 + 0.5).astype(np.int32)
