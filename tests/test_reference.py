@@ -58,9 +58,11 @@ def test_equals_reference_with_kick_noise_and_no_delay():
 @pytest.mark.slow
 @pytest.mark.parametrize("task", TASKS)
 def test_jax_step_equals_reference_1000_episodes(task):
-    checked, _ = run_against_reference(task, 1000, seed=100 + TASKS.index(task), max_iterations=4500,
-                                       pass_prob=0.15)
-    assert checked > 10_000
+    checked, arrays = run_against_reference(task, 1000, seed=100 + TASKS.index(task), max_iterations=4500,
+                                            pass_prob=0.15)
+    # random actions lose the ball within about ten iterations: ~9,000 steps checked per task
+    assert checked > 5_000
+    assert arrays["passes"].sum() > 300 and len(np.unique(arrays["reason"])) >= 2
 
 
 def test_equals_reference_with_other_speeds_and_field():
