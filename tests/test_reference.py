@@ -14,8 +14,8 @@ _step = jax.jit(env.transition, static_argnames=("config",))
 
 
 def run_against_reference(task, n_episodes, seed, max_iterations=400, noise_deg=0.0, delay=1,
-                          pass_prob=0.3):
-    cfg = KeepAwayConfig.from_task(task)
+                          pass_prob=0.3, cfg=None):
+    cfg = KeepAwayConfig.from_task(task) if cfg is None else cfg
     params = KeepAwayParams(max_iterations=max_iterations, kick_noise_deg=noise_deg,
                             taker_reaction_delay=delay)
     state = env.reset_batch(jax.random.key(seed), n_episodes, params, cfg)
@@ -67,13 +67,6 @@ def test_jax_step_equals_reference_1000_episodes(task):
 
 def test_equals_reference_with_other_speeds_and_field():
     """Non-default shapes: two king moves per iteration, a faster ball, a smaller field, 3 chasers."""
-    import kx.sim.types as types
-
-    orig = KeepAwayConfig.from_task
-    try:
-        KeepAwayConfig.from_task = classmethod(lambda cls, task: types.KeepAwayConfig(
-            n_keepers=4, n_takers=3, field_size=16, agent_speed=2, ball_speed=3, n_chasers=1))
-        checked, _ = run_against_reference("4v3", 30, seed=14, pass_prob=0.25)
-    finally:
-        KeepAwayConfig.from_task = orig
+    cfg = KeepAwayConfig(n_keepers=4, n_takers=3, field_size=16, agent_speed=2, ball_speed=3, n_chasers=1)
+    checked, _ = run_against_reference("4v3", 30, seed=14, pass_prob=0.25, cfg=cfg)
     assert checked > 100

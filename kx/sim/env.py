@@ -140,7 +140,7 @@ def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> Sta
         keeper_x=kx, keeper_y=ky, taker_x=taker_cells % w, taker_y=taker_cells // w,
         holder=holder, ball_x=hx, ball_y=hy, origin_x=hx, origin_y=hy,
         dir_x=jnp.ones((), jnp.int32), dir_y=zero, substep=zero,
-        kicker=-jnp.ones((), jnp.int32), receiver=-jnp.ones((), jnp.int32), t=zero,
+        kicker=-jnp.ones((), jnp.int32), t=zero,
         done=jnp.zeros((), bool), reason=zero, passes=zero, dispersion_sum=zero, ball_centre_sum=zero,
     )
 
@@ -192,7 +192,6 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     dir_y = jnp.where(launch, ey, state.dir_y)
     substep = jnp.where(launch, 0, state.substep)
     kicker = jnp.where(launch, state.holder, state.kicker)
-    receiver = jnp.where(launch, act, state.receiver)
     bx, by = state.ball_x, state.ball_y  # the ball has not moved yet this iteration
     flying = alive & (holder < 0)
 
@@ -272,7 +271,7 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
         holder=jnp.where(alive, holder, state.holder),
         ball_x=jnp.where(alive, ball_x, state.ball_x), ball_y=jnp.where(alive, ball_y, state.ball_y),
         origin_x=origin_x, origin_y=origin_y, dir_x=dir_x, dir_y=dir_y,
-        substep=jnp.where(alive, substep, state.substep), kicker=kicker, receiver=receiver,
+        substep=jnp.where(alive, substep, state.substep), kicker=kicker,
         t=t, done=state.done | (reason != Reason.RUNNING), reason=reason,
         passes=jnp.where(alive, passes, state.passes),
         dispersion_sum=state.dispersion_sum + jnp.where(alive, disp, 0),

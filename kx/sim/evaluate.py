@@ -65,12 +65,9 @@ def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
 
 def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id: jax.Array,
                    key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array, *,
-                   policy: Policy, config: KeepAwayConfig, unroll: int):
+                   policy: Policy, config: KeepAwayConfig):
     """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early once at most ``stop_at``
     lanes are live (the next narrower batch width would hold them; 0: when all have finished).
-
-    The loop checks for the end every ``unroll`` iterations (a finished episode is left unchanged by
-    further steps, so overshooting is harmless and only costs lockstep work).
     """
     noise_key, policy_key = jax.random.split(key)
     s_max = env.noise_limit(params.kick_noise_deg)
@@ -88,9 +85,7 @@ def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id:
 
     def body(carry):
         state, i = carry
-        for _ in range(unroll):
-            state = one(state)
-        return state, i + unroll
+        return one(state), i + 1
 
     def cond(carry):
         state, i = carry
@@ -101,14 +96,13 @@ def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id:
     return state, jnp.stack([steps, jnp.sum(~state.done, dtype=jnp.int32)])[None]
 
 
-@functools.partial(jax.jit, static_argnames=("policy", "config", "unroll", "n_dev"))
-def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at, *, policy, config,
-             unroll, n_dev):
+@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"))
+def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at, *, policy, config, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes are done or fit its share of the next narrower width (a global
     count would need a collective every iteration, which measured slower). Returns the state and,
     per device, the iterations it ran and its live lanes ``[n_dev, 2]``."""
-    local = functools.partial(_advance_local, policy=policy, config=config, unroll=unroll)
+    local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
         return local(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at)
     mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
@@ -152,8 +146,7 @@ def _finish(results: dict, params: KeepAwayParams, *, config):
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
              config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 4096,
-             first_chunk: int = 64,
-             unroll: int = 1, devices: int | None = None,
+             first_chunk: int = 64, devices: int | None = None,
              counters: EvalCounters | None = None) -> EpisodeStats:
     """Runs every policy on every start state to the end of its episode.
 
@@ -166,7 +159,6 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       chunk: the most iterations per compiled call. A call also returns as soon as its live lanes
         fit the next narrower width, so the batch narrows without waiting for the chunk to end; calls
         start at ``first_chunk`` iterations and double.
-      unroll: iterations between checks for the end inside a call.
       devices: split the lanes over this many local devices (default: all). On a CPU, run with
         ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to get one device per core.
       counters: if given, filled with executed and live lane-steps.
@@ -201,7 +193,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         stop_at = np.int32(narrower[0] if narrower else 0)
         state, progress = _advance(state, lane_params, trial_id, lane_id, key, params,
                                    np.int32(this_chunk), stop_at, policy=policy, config=config,
-                                   unroll=unroll, n_dev=n_dev)
+                                   n_dev=n_dev)
         this_chunk = min(2 * this_chunk, chunk)
         progress = np.asarray(jax.device_get(progress))  # one host sync per call
         n_live = int(progress[:, 1].sum())

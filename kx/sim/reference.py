@@ -27,7 +27,6 @@ class RefState:
     direction: tuple[int, int]
     substep: int
     kicker: int
-    receiver: int
     t: int = 0
     done: bool = False
     reason: int = Reason.RUNNING
@@ -44,7 +43,7 @@ class RefState:
             takers=[(i(x), i(y)) for x, y in zip(a["taker_x"], a["taker_y"])],
             holder=i(a["holder"]), ball=(i(a["ball_x"]), i(a["ball_y"])),
             origin=(i(a["origin_x"]), i(a["origin_y"])), direction=(i(a["dir_x"]), i(a["dir_y"])),
-            substep=i(a["substep"]), kicker=i(a["kicker"]), receiver=i(a["receiver"]), t=i(a["t"]),
+            substep=i(a["substep"]), kicker=i(a["kicker"]), t=i(a["t"]),
             done=bool(a["done"]), reason=i(a["reason"]), passes=i(a["passes"]),
             dispersion_sum=i(a["dispersion_sum"]), ball_centre_sum=i(a["ball_centre_sum"]),
         )
@@ -56,7 +55,7 @@ class RefState:
             "holder": self.holder, "ball_x": self.ball[0], "ball_y": self.ball[1],
             "origin_x": self.origin[0], "origin_y": self.origin[1],
             "dir_x": self.direction[0], "dir_y": self.direction[1], "substep": self.substep,
-            "kicker": self.kicker, "receiver": self.receiver, "t": self.t, "done": self.done,
+            "kicker": self.kicker, "t": self.t, "done": self.done,
             "reason": self.reason, "passes": self.passes, "dispersion_sum": self.dispersion_sum,
             "ball_centre_sum": self.ball_centre_sum,
         }
@@ -64,10 +63,6 @@ class RefState:
 
 def cheb(a, b) -> int:
     return max(abs(a[0] - b[0]), abs(a[1] - b[1]))
-
-
-def sign(v: int) -> int:
-    return (v > 0) - (v < 0)
 
 
 def step_toward(p, goal, speed: int, w: int):
@@ -158,7 +153,7 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
             else:
                 if noise:
                     d = (NOISE_DENOM * d[0] - noise * d[1], noise * d[0] + NOISE_DENOM * d[1])
-                s.kicker, s.receiver = s.holder, target
+                s.kicker = s.holder
                 s.holder = -1
                 s.origin, s.direction, s.substep = s.ball, d, 0
     flying = s.holder < 0

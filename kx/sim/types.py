@@ -177,7 +177,6 @@ class State:
     dir_y: jax.Array  # [*B]
     substep: jax.Array  # [*B] unit sub-steps the current pass has travelled
     kicker: jax.Array  # [*B] keeper who kicked the current pass, -1 if none
-    receiver: jax.Array  # [*B] keeper the current pass was aimed at, -1 if none
     t: jax.Array  # [*B] iterations executed
     done: jax.Array  # [*B] bool
     reason: jax.Array  # [*B] Reason
