@@ -1,0 +1,292 @@
+"""NEAT's generation step as pure functions: ``init``, ``ask``, ``tell`` (the evosax shape).
+
+Stanley & Miikkulainen (2002), with the choices of ``SPEC.md`` §2::
+
+    state = init(key, params, config)
+    for generation in range(n):
+        population, state = ask(key_ask, state, params, config)     # Genome pytree, [P, ...]
+        fitness = my_fitness(build_networks(population))            # [P] float, higher is better
+        state, metrics = tell(key_tell, population, fitness, state, params, config)
+
+``tell`` is the whole generation step: species bookkeeping and stagnation, explicit fitness sharing,
+offspring allocation, selection within the top ``survival_threshold`` of each species, champion
+elitism, crossover and mutation with innovation numbers shared across the generation, speciation of the
+offspring against representatives of the previous species, and adaptation of the compatibility
+threshold toward ``target_species``. It is a function of fixed-shape arrays with no Python loop over
+genomes or species (new species are founded in a ``lax.while_loop`` that runs once per new species), so
+it compiles once and vmaps over seeds.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+
+from kx.neat import genome as gn
+from kx.neat.network import Network, build
+from kx.neat.types import HIDDEN, Counters, Genome, NEATConfig, NEATError, NEATParams, NEATState
+
+I32, F32 = jnp.int32, jnp.float32
+
+
+def _take(tree, idx):
+    return jax.tree.map(lambda x: x[idx], tree)
+
+
+def _pairwise(pop: Genome, reps: Genome, params: NEATParams) -> jax.Array:
+    """``[P, S]`` compatibility distances."""
+    return jax.vmap(lambda g: jax.vmap(lambda r: gn.distance(g, r, params))(reps))(pop)
+
+
+def speciate(pop: Genome, reps: Genome, rep_alive: jax.Array, threshold: jax.Array, params: NEATParams):
+    """Assign each genome a species slot.
+
+    A genome joins the nearest living species whose representative, a member of the previous
+    generation, is closer than ``threshold``. Genomes left over found new
+    species in free slots, in population order: the first left over becomes the representative, and
+    every left-over genome closer than ``threshold`` to it joins it (Stanley's sequential rule, one
+    loop iteration per new species). No species is founded once ``params.target_species`` exist (the
+    paper's "maximum number of species") or the slots are full: the rest join their nearest species
+    and are counted as overflow, which raises the threshold (see :func:`tell`).
+
+    Returns ``(species [P], alive [S], founded [S], overflow)``; ``founded`` marks new species.
+    """
+    p, s = pop.node_id.shape[0], rep_alive.shape[0]
+    d = _pairwise(pop, reps, params)
+    cand = rep_alive[None, :] & (d < threshold)
+    species = jnp.where(jnp.any(cand, axis=1), jnp.argmin(jnp.where(cand, d, jnp.inf), axis=1), -1).astype(I32)
+
+    def cond(c):
+        species, alive, _, _ = c
+        return jnp.any(species < 0) & (jnp.sum(alive) < params.target_species) & jnp.any(~alive)
+
+    def body(c):
+        species, alive, founded, d = c
+        g = jnp.argmax(species < 0)
+        slot = jnp.argmax(~alive)
+        dg = jax.vmap(lambda x: gn.distance(x, _take(pop, g), params))(pop)
+        join = (species < 0) & ((dg < threshold) | (jnp.arange(p) == g))
+        return (jnp.where(join, slot, species).astype(I32), alive.at[slot].set(True),
+                founded.at[slot].set(True), d.at[:, slot].set(dg))
+
+    species, alive, founded, d = jax.lax.while_loop(cond, body, (species, rep_alive, jnp.zeros((s,), bool), d))
+    # Left over with no slot to found: the nearest species (founders' columns of d are theirs now).
+    left = species < 0
+    near = jnp.argmin(jnp.where(alive[None, :], d, jnp.inf), axis=1).astype(I32)
+    species = jnp.where(left, near, species)
+    counts = jax.ops.segment_sum(jnp.ones((p,), I32), species, s)
+    alive = counts > 0
+    return species, alive, founded & alive, jnp.sum(left, dtype=I32)
+
+
+def allocate(share: jax.Array, eligible: jax.Array, total: int, cap: jax.Array) -> jax.Array:
+    """Offspring per species ``[S]`` (int32, summing to ``total``), proportional to ``share`` among
+    ``eligible`` species, at most ``cap`` each (0: no cap; raised to ``ceil(total / eligible)`` when
+    the cap could not place everyone): capped shares are fixed and the rest re-divided until none
+    exceeds the cap, then rounded by largest remainder."""
+    s = share.shape[0]
+    n_el = jnp.maximum(jnp.sum(eligible), 1)
+    cap = jnp.where(cap > 0, jnp.maximum(cap, -(-total // n_el)), total).astype(F32)
+    share = jnp.where(eligible, share, 0.0)
+
+    def quotas(capped):
+        free = eligible & ~capped
+        rest = total - cap * jnp.sum(capped)
+        tot = jnp.sum(jnp.where(free, share, 0.0))
+        n_free = jnp.maximum(jnp.sum(free), 1)
+        q = jnp.where(tot > 0, share / jnp.where(tot > 0, tot, 1.0), 1.0 / n_free) * rest
+        return jnp.where(capped, cap, jnp.where(free, q, 0.0))
+
+    capped = jax.lax.fori_loop(0, s, lambda _, c: c | (quotas(c) > cap), jnp.zeros((s,), bool))
+    q = quotas(capped)
+    base = jnp.floor(q).astype(I32)
+    rem = total - jnp.sum(base)
+    frac = jnp.where(eligible, q - base, -1.0)
+    rank = jnp.argsort(jnp.argsort(-frac, stable=True), stable=True)
+    return base + (rank < rem).astype(I32)
+
+
+def init(key: jax.Array, params: NEATParams, config: NEATConfig) -> NEATState:
+    """The first population: every genome fully connected, weights at random; speciated."""
+    p, s = config.population_size, config.species_capacity
+    pop = jax.vmap(lambda k: gn.initial_genome(k, config, params))(jax.random.split(key, p))
+    reps = _take(pop, jnp.zeros((s,), I32))
+    threshold = jnp.asarray(params.compat_threshold, F32)
+    species, alive, founded, over = speciate(pop, reps, jnp.zeros((s,), bool), threshold, params)
+    uid = jnp.where(founded, jnp.cumsum(founded) - 1, -1).astype(I32)
+    counters = Counters.zeros().replace(species_overflow=over)
+    return NEATState(
+        population=pop, species=species, species_alive=alive, species_uid=uid,
+        species_best=jnp.full((s,), -jnp.inf, F32), species_improved=jnp.zeros((s,), I32),
+        species_born=jnp.zeros((s,), I32), threshold=jnp.asarray(params.compat_threshold, F32),
+        next_node_id=jnp.asarray(config.n_fixed, I32), next_innov=jnp.asarray(config.n_initial_conns, I32),
+        next_species_uid=jnp.sum(founded, dtype=I32), generation=jnp.zeros((), I32),
+        best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32), counters=counters)
+
+
+def ask(key: jax.Array, state: NEATState, params: NEATParams, config: NEATConfig) -> tuple[Genome, NEATState]:
+    """The population to evaluate (reproduction happens in :func:`tell`; ``key`` is unused)."""
+    del key, params, config
+    return state.population, state
+
+
+def build_networks(population: Genome, config: NEATConfig) -> Network:
+    """Networks of a whole population (``[P, ...]`` leaves)."""
+    return jax.vmap(lambda g: build(g, config))(population)
+
+
+def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATState, params: NEATParams,
+         config: NEATConfig) -> tuple[NEATState, dict]:
+    """Score the evaluated ``population`` with ``fitness`` ``[P]`` and breed the next generation.
+
+    Non-finite fitness counts as the population's worst finite value. Returns the new state and this
+    generation's metrics (scalars and ``[S]`` arrays, about the evaluated population).
+    """
+    p, s = config.population_size, config.species_capacity
+    gen = state.generation
+    f = jnp.asarray(fitness, F32)
+    ok = jnp.isfinite(f)
+    f = jnp.where(ok, f, jnp.min(jnp.where(ok, f, jnp.inf)))
+    f = jnp.where(jnp.any(ok), f, 0.0)
+    sp = state.species
+    k_par, k_mut, k_rep, k_x = jax.random.split(key, 4)
+
+    # Species bookkeeping: improvement and stagnation.
+    counts = jax.ops.segment_sum(jnp.ones((p,), I32), sp, s)
+    sp_max = jax.ops.segment_max(f, sp, s)
+    improved = state.species_alive & (sp_max > state.species_best)
+    sp_best = jnp.where(improved, sp_max, state.species_best)
+    sp_improved = jnp.where(improved, gen, state.species_improved)
+    champ = jnp.argmax(f)
+    stagnant = (gen - sp_improved >= params.stagnation_limit) & (jnp.arange(s) != sp[champ])
+    eligible = state.species_alive & (counts > 0) & ~stagnant
+
+    # Explicit fitness sharing: a species' share is the sum of its members' f / |species|.
+    fs = f - jnp.minimum(0.0, jnp.min(f))
+    share = jax.ops.segment_sum(fs, sp, s) / jnp.maximum(counts, 1)
+    n_off = allocate(share, eligible, p, jnp.asarray(params.max_species_population, I32))
+
+    # Parents: members sorted by species, then fitness (descending).
+    order = jnp.lexsort((-f, sp)).astype(I32)
+    mem_start = jnp.cumsum(counts) - counts
+    pool = jnp.clip(jnp.floor(params.survival_threshold * counts).astype(I32) + 1, 1, jnp.maximum(counts, 1))
+    off_end = jnp.cumsum(n_off)
+    child_sp = jnp.searchsorted(off_end, jnp.arange(p), side="right").astype(I32)
+    rank = jnp.arange(p) - (off_end - n_off)[child_sp]
+    elite = (rank == 0) & (counts[child_sp] > params.elitism_min_size)
+    ks = jax.random.split(k_par, 6)
+    u = jax.random.uniform(ks[0], (p, 2))
+    pick = lambda k, sp_: order[mem_start[sp_] + jax.random.randint(k, (p,), 0, pool[sp_])]
+    p1 = pick(ks[1], child_sp)
+    other_sp = jax.random.categorical(ks[2], jnp.where(eligible & (counts > 0), 0.0, -jnp.inf), shape=(p,)).astype(I32)
+    p2 = jnp.where(u[:, 1] < params.interspecies_prob, pick(ks[3], other_sp), pick(ks[4], child_sp))
+    fitter = jnp.where(f[p2] > f[p1], p2, p1)
+    weaker = jnp.where(f[p2] > f[p1], p1, p2)
+    crossed = jax.vmap(lambda k, a, b: gn.crossover(k, a, b, params))(
+        jax.random.split(k_x, p), _take(population, fitter), _take(population, weaker))
+    mut_only = u[:, 0] < params.mutation_only_prob
+    base_idx = jnp.where(elite, order[mem_start[child_sp]], p1)
+    base = jax.tree.map(lambda a, c: jnp.where((elite | mut_only).reshape((p,) + (1,) * (a.ndim - 1)), a, c),
+                        _take(population, base_idx), crossed)
+    children, next_node, next_innov, counters = gn.mutate_population(
+        k_mut, base, elite, state.next_node_id, state.next_innov, params, config)
+
+    # Speciate the offspring against a random member of each species that reproduced.
+    rep_idx = order[mem_start + jax.random.randint(k_rep, (s,), 0, jnp.maximum(counts, 1))]
+    rep_alive = state.species_alive & (n_off > 0)
+    reps = _take(population, rep_idx)
+    first = speciate(children, reps, rep_alive, state.threshold, params)
+
+    # Species removed at once (stagnation, no offspring) can leave far fewer than the target; then,
+    # if asked, speciate again with the threshold halved (up to ``respeciate`` times).
+    def short(c):
+        k, _, res = c
+        return (k < params.respeciate) & (jnp.sum(res[1]) < params.target_species - 2)
+
+    def again(c):
+        k, thr, _ = c
+        return k + 1, thr * 0.5, speciate(children, reps, rep_alive, thr * 0.5, params)
+
+    _, used_threshold, (new_sp, alive, founded, sp_over) = jax.lax.while_loop(
+        short, again, (jnp.zeros((), I32), state.threshold, first))
+    uid = jnp.where(founded, state.next_species_uid + jnp.cumsum(founded) - 1, state.species_uid).astype(I32)
+    n_species = jnp.sum(alive, dtype=I32)
+    # Fewer species than the target: lower the threshold; genomes that fit no species and could not
+    # found one: raise it. Multiplicative, so that it moves as fast at 0.2 as at 3.
+    factor = jnp.where(n_species < params.target_species, 1.0 - params.threshold_step,
+                       jnp.where(sp_over > 0, 1.0 + params.threshold_step, 1.0))
+    threshold = jnp.maximum(used_threshold * factor, params.threshold_min)
+
+    better = f[champ] > state.best_fitness
+    best_genome = jax.tree.map(lambda a, b: jnp.where(better, a, b), _take(population, champ), state.best_genome)
+    new_state = NEATState(
+        population=children, species=new_sp, species_alive=alive, species_uid=uid,
+        species_best=jnp.where(founded, -jnp.inf, sp_best),
+        species_improved=jnp.where(founded, gen + 1, sp_improved),
+        species_born=jnp.where(founded, gen + 1, state.species_born), threshold=threshold,
+        next_node_id=next_node, next_innov=next_innov,
+        next_species_uid=state.next_species_uid + jnp.sum(founded, dtype=I32),
+        generation=gen + 1, best_genome=best_genome, best_fitness=jnp.maximum(f[champ], state.best_fitness),
+        counters=counters.replace(species_overflow=sp_over))
+    metrics = {
+        "generation": gen,
+        "best_fitness": f[champ],
+        "mean_fitness": jnp.mean(f),
+        "median_fitness": jnp.median(f),
+        "n_species": jnp.sum(state.species_alive & (counts > 0), dtype=I32),
+        "n_species_next": n_species,
+        "threshold": state.threshold,
+        "mean_hidden": jnp.mean(jnp.sum(population.node_kind == HIDDEN, axis=1).astype(F32)),
+        "mean_links": jnp.mean(jnp.sum(population.conn_valid & population.conn_enabled, axis=1).astype(F32)),
+        "champion_hidden": jnp.sum(population.node_kind[champ] == HIDDEN, dtype=I32),
+        "champion_links": jnp.sum(population.conn_valid[champ] & population.conn_enabled[champ], dtype=I32),
+        "stagnant_species": jnp.sum(stagnant & state.species_alive, dtype=I32),
+        "species_sizes": counts,
+        "offspring": n_off,
+        "node_overflow": counters.node_overflow,
+        "link_overflow": counters.link_overflow,
+        "species_overflow": sp_over,
+        "new_nodes": counters.new_nodes,
+        "new_links": counters.new_links,
+    }
+    return new_state, metrics
+
+
+def validate(config: NEATConfig, params: NEATParams) -> None:
+    """Check concrete parameters against the config; raises :class:`NEATError` naming the field."""
+    params.validate()
+    if int(params.target_species) > config.species_capacity:
+        raise NEATError(f"NEATParams.target_species = {params.target_species}: allowed at most "
+                        f"NEATConfig.species_capacity = {config.species_capacity}")
+
+
+class NEAT:
+    """NEAT for one :class:`NEATConfig`, with jitted ``init``/``ask``/``tell`` (evosax's interface)::
+
+        neat = NEAT(config)
+        state = neat.init(key)
+        population, state = neat.ask(k1, state)
+        state, metrics = neat.tell(k2, population, fitness, state)
+    """
+
+    def __init__(self, config: NEATConfig, params: NEATParams | None = None):
+        self.config = config
+        self.default_params = params if params is not None else NEATParams()
+        validate(config, self.default_params)
+        self._init = jax.jit(functools.partial(init, config=config))
+        self._tell = jax.jit(functools.partial(tell, config=config))
+        self._build = jax.jit(functools.partial(build_networks, config=config))
+
+    def init(self, key: jax.Array, params: NEATParams | None = None) -> NEATState:
+        return self._init(key, params or self.default_params)
+
+    def ask(self, key: jax.Array, state: NEATState, params: NEATParams | None = None):
+        return ask(key, state, params or self.default_params, self.config)
+
+    def tell(self, key, population, fitness, state, params: NEATParams | None = None):
+        return self._tell(key, population, fitness, state, params or self.default_params)
+
+    def networks(self, population: Genome) -> Network:
+        return self._build(population)

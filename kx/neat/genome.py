@@ -1,0 +1,514 @@
+"""Genome operators of NEAT (Stanley & Miikkulainen 2002) on fixed-capacity tensors.
+
+Every operator here is a pure function of *one* genome (see :mod:`kx.neat.types` for the layout),
+vmapped over the population by the caller. Structural mutation is split in two so that the same
+structural innovation arising in several genomes of one generation gets one innovation number:
+
+1. :func:`propose_structure` (per genome) picks the link to split or the link to add;
+2. :func:`assign_innovations` (over the population) numbers the distinct proposals;
+3. :func:`apply_structure` (per genome) writes the genes with those numbers.
+
+Connection genes live in *columns*: within a population, a column holds one innovation number, and a
+new innovation is given a column that no genome of the generation uses (see :mod:`kx.neat.types`), so
+that aligning two genomes by innovation number is a comparison column by column. A mutation that needs
+a node slot or a column when none is left is skipped and counted.
+
+Every operator keeps the invariants checked by :func:`check_genome`: innovation numbers are unique
+within a genome, hidden nodes are a prefix, every link leaves an input, the bias or a hidden node and
+enters a hidden or output node, no two links join the same pair, and the graph of all links (enabled
+or not, so that re-enabling never closes a cycle) is acyclic.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Counters, Genome, NEATConfig, NEATParams
+
+I32 = jnp.int32
+
+
+# --------------------------------------------------------------------------------------------------
+# Construction
+
+
+def initial_genome(key: jax.Array, config: NEATConfig, params: NEATParams) -> Genome:
+    """Inputs and bias fully connected to the outputs, weights ~ U(-weight_init_range, +range).
+
+    Link ``(source slot s, output o)`` has innovation number ``s * n_outputs + o`` in every genome.
+    """
+    n, c, f = config.max_nodes, config.max_conns, config.n_fixed
+    slots = jnp.arange(n, dtype=I32)
+    kind = jnp.full((n,), EMPTY, I32)
+    kind = kind.at[: config.n_inputs].set(INPUT).at[config.n_inputs].set(BIAS)
+    kind = kind.at[config.first_output: f].set(OUTPUT)
+    act = jnp.where(kind == OUTPUT, config.act_id(config.output_activation), 0).astype(I32)
+    m = config.n_initial_conns
+    idx = jnp.arange(c, dtype=I32)
+    used = idx < m
+    src = jnp.where(used, idx // config.n_outputs, -1)
+    dst = jnp.where(used, config.first_output + idx % config.n_outputs, -1)
+    r = params.weight_init_range
+    w = jnp.where(used, jax.random.uniform(key, (c,), jnp.float32, -r, r), 0.0)
+    return Genome(node_id=jnp.where(slots < f, slots, -1), node_kind=kind, node_act=act,
+                  node_valid=slots < f, conn_innov=jnp.where(used, idx, -1), conn_src=src.astype(I32),
+                  conn_dst=dst.astype(I32), conn_weight=w, conn_enabled=used, conn_valid=used)
+
+
+def n_conns(g: Genome) -> jax.Array:  # connection genes of a genome
+    return jnp.sum(g.conn_valid, dtype=I32)
+
+
+def n_hidden(g: Genome) -> jax.Array:
+    return jnp.sum(g.node_kind == HIDDEN, dtype=I32)
+
+
+def slot_of(g: Genome, ids: jax.Array) -> jax.Array:
+    """Node slot of each node id in ``ids`` (0 for ids the genome lacks; mask those yourself)."""
+    return jnp.argmax(g.node_id == ids[..., None], axis=-1).astype(I32)
+
+
+# --------------------------------------------------------------------------------------------------
+# Alignment, distance, crossover
+
+
+def _align(a: Genome, b: Genome) -> jax.Array:
+    """Per column: both genomes carry the same innovation there (genomes of one lineage keep each
+    innovation in the column it was created in)."""
+    return a.conn_valid & b.conn_valid & (a.conn_innov == b.conn_innov)
+
+
+def distance(a: Genome, b: Genome, params: NEATParams) -> jax.Array:
+    """Compatibility distance ``c1 E / N + c2 D / N + c3 W`` over connection genes (NEAT eq. 1).
+
+    E counts excess genes (beyond the other genome's largest innovation number), D disjoint genes, W
+    is the mean absolute weight difference of matching genes; N is the larger genome's gene count, or 1
+    while both have fewer than ``params.small_genome`` genes.
+    """
+    match = _align(a, b)
+    na, nb = n_conns(a), n_conns(b)
+    max_a = jnp.max(jnp.where(a.conn_valid, a.conn_innov, -1))
+    max_b = jnp.max(jnp.where(b.conn_valid, b.conn_innov, -1))
+    un_a = a.conn_valid & ~match
+    un_b = b.conn_valid & ~match
+    excess = jnp.sum(un_a & (a.conn_innov > max_b)) + jnp.sum(un_b & (b.conn_innov > max_a))
+    disjoint = jnp.sum(un_a) + jnp.sum(un_b) - excess
+    n_match = jnp.sum(match)
+    dw = jnp.sum(jnp.where(match, jnp.abs(a.conn_weight - b.conn_weight), 0.0))
+    w = jnp.where(n_match > 0, dw / jnp.maximum(n_match, 1), 0.0)
+    big_n = jnp.maximum(na, nb)
+    norm = jnp.where(big_n < params.small_genome, 1, jnp.maximum(big_n, 1)).astype(jnp.float32)
+    return (params.c1 * excess + params.c2 * disjoint) / norm + params.c3 * w
+
+
+def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams) -> Genome:
+    """Offspring of two parents aligned by innovation number.
+
+    Matching genes take weight and enabled flag from either parent at random; disjoint and excess
+    genes come from the fitter parent, so the offspring has exactly the fitter parent's structure
+    (nodes and links) and stays valid. A matching gene disabled in either parent is disabled with
+    probability ``disable_inherit_prob`` (otherwise it keeps the flag of the parent it came from). A
+    matching hidden node takes its activation from either parent at random.
+    """
+    k_pick, k_dis, k_act = jax.random.split(key, 3)
+    match = _align(fitter, other)
+    take_other = match & jax.random.bernoulli(k_pick, 0.5, match.shape)
+    w = jnp.where(take_other, other.conn_weight, fitter.conn_weight)
+    en = jnp.where(take_other, other.conn_enabled, fitter.conn_enabled)
+    either_off = match & ~(fitter.conn_enabled & other.conn_enabled)
+    force_off = either_off & jax.random.bernoulli(k_dis, params.disable_inherit_prob, match.shape)
+    en = en & ~force_off
+    # Node activations (matter for CPPNs only): matching hidden nodes from either parent.
+    node_match = (fitter.node_id[:, None] == other.node_id[None, :]) & fitter.node_valid[:, None] \
+        & other.node_valid[None, :]
+    has = jnp.any(node_match, axis=1) & (fitter.node_kind == HIDDEN)
+    other_act = other.node_act[jnp.argmax(node_match, axis=1)]
+    pick_act = has & jax.random.bernoulli(k_act, 0.5, has.shape)
+    act = jnp.where(pick_act, other_act, fitter.node_act)
+    return fitter.replace(conn_weight=w, conn_enabled=en, node_act=act)
+
+
+# --------------------------------------------------------------------------------------------------
+# Weight and flag mutations
+
+
+def mutate_weights(key: jax.Array, g: Genome, params: NEATParams) -> Genome:
+    """Each connection weight, with probability ``weight_mutate_rate``: perturbed by U(-p, p) with
+    probability ``weight_perturb_prob``, else replaced by a fresh U(-init, init) value; then clipped."""
+    k_m, k_p, k_d, k_r = jax.random.split(key, 4)
+    shape = g.conn_weight.shape
+    mutate = g.conn_valid & jax.random.bernoulli(k_m, params.weight_mutate_rate, shape)
+    perturb = jax.random.bernoulli(k_p, params.weight_perturb_prob, shape)
+    p, r = params.weight_perturb_power, params.weight_init_range
+    delta = jax.random.uniform(k_d, shape, jnp.float32, -1.0, 1.0) * p
+    fresh = jax.random.uniform(k_r, shape, jnp.float32, -1.0, 1.0) * r
+    w = jnp.where(mutate, jnp.where(perturb, g.conn_weight + delta, fresh), g.conn_weight)
+    w = jnp.clip(w, -params.weight_range, params.weight_range)
+    return g.replace(conn_weight=jnp.where(g.conn_valid, w, 0.0))
+
+
+def _pick(key: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """A uniformly random index where ``mask`` (flattened) is true, and whether there is one."""
+    flat = mask.reshape(-1)
+    u = jax.random.uniform(key, flat.shape)
+    i = jnp.argmax(jnp.where(flat, u + 1.0, 0.0)).astype(I32)
+    return i, jnp.any(flat)
+
+
+def mutate_reenable(key: jax.Array, g: Genome) -> Genome:
+    """Re-enable one disabled connection gene chosen at random (if any): safe, since the graph of
+    all links, disabled ones included, is kept acyclic."""
+    i, ok = _pick(key, g.conn_valid & ~g.conn_enabled)
+    return g.replace(conn_enabled=g.conn_enabled.at[i].set(g.conn_enabled[i] | ok))
+
+
+def mutate_activation(key: jax.Array, g: Genome, config: NEATConfig) -> Genome:
+    """Redraw the activation of one hidden node at random from ``activation_options``."""
+    k_i, k_a = jax.random.split(key)
+    i, ok = _pick(k_i, g.node_kind == HIDDEN)
+    a = jax.random.randint(k_a, (), 0, len(config.activation_options), I32)
+    return g.replace(node_act=g.node_act.at[i].set(jnp.where(ok, a, g.node_act[i])))
+
+
+# --------------------------------------------------------------------------------------------------
+# Structural mutations
+
+NONE, ADD_NODE, ADD_LINK = 0, 1, 2
+
+
+def _adjacency(src: jax.Array, dst: jax.Array, mask: jax.Array, n: int) -> jax.Array:
+    """``[n, n]`` float 0/1 matrix with a 1 at ``(src[c], dst[c])`` for every ``c`` with ``mask[c]``
+    (a one-hot product rather than a scatter, which XLA runs element by element on CPU)."""
+    cols = jnp.arange(n)
+    one_s = ((src[:, None] == cols) & mask[:, None]).astype(jnp.float32)
+    one_d = (dst[:, None] == cols).astype(jnp.float32)
+    return jnp.minimum(one_s.T @ one_d, 1.0)
+
+
+def closure(adj: jax.Array) -> jax.Array:
+    """Transitive closure of a 0/1 adjacency matrix by repeated squaring: ``reach[i, j]`` is 1 when a
+    path of one or more links leads from ``i`` to ``j``."""
+    n = adj.shape[-1]
+    reach = adj
+    for _ in range(max(1, int(np.ceil(np.log2(max(n, 2)))))):
+        reach = jnp.minimum(reach + reach @ reach, 1.0)
+    return reach
+
+
+class Links(NamedTuple):
+    """A genome's connection genes gathered into ``max_genes`` rows (valid ones first), with node slots
+    in place of ids: the compact view the structural operators and the network builder work on."""
+
+    col: jax.Array  # [K] column of each row
+    src: jax.Array  # [K] source node slot
+    dst: jax.Array  # [K] target node slot
+    valid: jax.Array  # [K] bool
+    enabled: jax.Array  # [K] bool
+    weight: jax.Array  # [K] float32
+
+
+def links(g: Genome, config: NEATConfig) -> Links:
+    # Row k takes the column where the running count of valid columns first reaches k + 1 (a binary
+    # search: XLA's CPU sort costs ten times as much).
+    count = jnp.cumsum(g.conn_valid.astype(I32))
+    col = jnp.searchsorted(count, jnp.arange(1, config.genes + 1, dtype=I32))
+    valid = col < config.max_conns
+    col = jnp.minimum(col, config.max_conns - 1).astype(I32)
+    return Links(col=col, src=slot_of(g, g.conn_src[col]), dst=slot_of(g, g.conn_dst[col]), valid=valid,
+                 enabled=g.conn_enabled[col] & valid, weight=jnp.where(valid, g.conn_weight[col], 0.0))
+
+
+def hidden_reach(lk: Links, config: NEATConfig, enabled_only: bool = False) -> jax.Array:
+    """``[n_hidden, n_hidden]`` bool: a path of links leads from hidden slot ``i`` to hidden slot ``j``
+    (all links count unless ``enabled_only``).
+
+    A new link src -> dst closes a cycle only if dst reaches src; inputs have no in-links and outputs no
+    out-links, so only paths between hidden nodes matter.
+    """
+    h, f = config.n_hidden, config.n_fixed
+    if h == 0:
+        return jnp.zeros((0, 0), bool)
+    adj = _adjacency(lk.src - f, lk.dst - f, lk.enabled if enabled_only else lk.valid, h)
+    return closure(adj) > 0
+
+
+def link_candidates(g: Genome, config: NEATConfig, lk: Links | None = None) -> jax.Array:
+    """``[max_nodes, max_nodes]`` mask of (source slot, target slot) pairs a new link may join: from an
+    input, the bias or a hidden node to a hidden or output node, not yet linked, closing no cycle."""
+    lk = links(g, config) if lk is None else lk
+    kind = g.node_kind
+    src_ok = g.node_valid & ((kind == INPUT) | (kind == BIAS) | (kind == HIDDEN))
+    dst_ok = g.node_valid & ((kind == HIDDEN) | (kind == OUTPUT))
+    n = config.max_nodes
+    cand = src_ok[:, None] & dst_ok[None, :] & ~jnp.eye(n, dtype=bool)
+    cand = cand & ~(_adjacency(lk.src, lk.dst, lk.valid, n) > 0)
+    if config.n_hidden:
+        f = config.n_fixed
+        back = hidden_reach(lk, config).T  # back[i, j]: hidden j reaches hidden i
+        cand = cand.at[f:, f:].set(cand[f:, f:] & ~back)
+    return cand
+
+
+def _structure_draw(key: jax.Array, params: NEATParams):
+    k_u, k_split, k_link = jax.random.split(key, 3)
+    u = jax.random.uniform(k_u)
+    want_node = u < params.add_node_prob
+    want_link = ~want_node & (u < params.add_node_prob + params.add_link_prob)
+    return want_node, want_link, k_split, k_link
+
+
+def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEATConfig, link_pick=None):
+    """Draw this genome's structural mutation: add node with ``add_node_prob``, else add link with
+    ``add_link_prob``, else none. Returns ``(kind, key1, key2, (node_full, link_exhausted))``: for
+    ADD_NODE, key1 is the column of the link to split; for ADD_LINK, key1 and key2 are the source and
+    target node ids. ``node_full``: an add node skipped because every hidden slot is taken;
+    ``link_exhausted``: an add link with no new feed-forward link left to add."""
+    k_u, k_split, k_link = jax.random.split(key, 3)
+    u = jax.random.uniform(k_u)
+    want_node = u < params.add_node_prob
+    want_link = ~want_node & (u < params.add_node_prob + params.add_link_prob)
+    split, has_split = _pick(k_split, g.conn_enabled)
+    genes = n_conns(g)
+    node_room = (n_hidden(g) < config.n_hidden) & (genes + 2 <= config.genes)
+    do_node = want_node & has_split & node_room
+    pair, has_pair = _pick(k_link, link_candidates(g, config)) if link_pick is None else link_pick
+    link_room = genes + 1 <= config.genes
+    do_link = want_link & has_pair & link_room
+    n = config.max_nodes
+    kind = jnp.where(do_node, ADD_NODE, jnp.where(do_link, ADD_LINK, NONE)).astype(I32)
+    key1 = jnp.where(do_node, split, jnp.where(do_link, g.node_id[pair // n], -1)).astype(I32)
+    key2 = jnp.where(do_link, g.node_id[pair % n], -1).astype(I32)
+    return kind, key1, key2, (want_node & has_split & ~node_room, want_link & has_pair & ~link_room,
+                              want_link & ~has_pair)
+
+
+def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATParams, config: NEATConfig):
+    """The new link of every genome that draws add-link (``[P]`` keys as given to
+    :func:`propose_structure`), computing candidate links only for those genomes: at most
+    ``max(8, P // 8)`` of them (about 5% draw it); any beyond are skipped and returned as overflow.
+    Returns ``((pair, has_pair), overflow)``, ``[P]`` each."""
+    p = frozen.shape[0]
+    m = min(p, max(8, p // 8))
+    want = jax.vmap(lambda k: _structure_draw(k, params)[1])(keys) & ~frozen
+    idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
+    sel = jnp.minimum(idx, p - 1)
+    k_link = jax.vmap(lambda k: _structure_draw(k, params)[3])(keys[sel])
+    pair, has = jax.vmap(lambda k, g: _pick(k, link_candidates(g, config)))(k_link, jax.tree.map(lambda x: x[sel], pop))
+    pair_all = jnp.zeros((p,), I32).at[idx].set(pair, mode="drop")
+    has_all = jnp.zeros((p,), bool).at[idx].set(has & (idx < p), mode="drop")
+    chosen = jnp.zeros((p,), bool).at[idx].set(True, mode="drop")
+    return (pair_all, has_all), want & ~chosen
+
+
+def assign_innovations(kind: jax.Array, key1: jax.Array, key2: jax.Array, split_innov: jax.Array,
+                       used_columns: jax.Array, next_node_id: jax.Array, next_innov: jax.Array):
+    """Number the distinct structural proposals of a generation (``[P]`` arrays) and give each new
+    connection gene a column.
+
+    Proposals to split the same link (same innovation ``split_innov``) share one new node id and the
+    two innovation numbers of its links; proposals of the same new link (same source and target ids)
+    share one innovation number. Distinct innovations take the columns no genome uses
+    (``~used_columns``), in order: add-node pairs first, then new links; a proposal left without a
+    column is dropped (``kind`` becomes NONE) and counted.
+
+    Returns ``(kind, node_id, innov_a, innov_b, col_a, col_b, next_node_id, next_innov, n_new_nodes,
+    n_new_links, n_dropped)``; ``innov_b``/``col_b`` are used by add-node only.
+    """
+    k1 = jnp.where(kind == ADD_NODE, split_innov, jnp.where(kind == ADD_LINK, key1, -1))
+    k2 = jnp.where(kind == ADD_LINK, key2, -1)
+    order = jnp.lexsort((k2, k1, kind))
+    sk, s1, s2 = kind[order], k1[order], k2[order]
+    first = jnp.concatenate([jnp.ones((1,), bool),
+                             (sk[1:] != sk[:-1]) | (s1[1:] != s1[:-1]) | (s2[1:] != s2[:-1])])
+    node_rank = jnp.cumsum(first & (sk == ADD_NODE)) - 1
+    link_rank = jnp.cumsum(first & (sk == ADD_LINK)) - 1
+    n_node_groups = jnp.sum(first & (sk == ADD_NODE), dtype=I32)
+    # Column ranks: add node g takes free columns 2g and 2g + 1, new link l takes 2 n_node_groups + l.
+    rank_a = jnp.where(sk == ADD_NODE, 2 * node_rank, 2 * n_node_groups + link_rank)
+    rank_last = jnp.where(sk == ADD_NODE, rank_a + 1, rank_a)
+    n_free = jnp.sum(~used_columns, dtype=I32)
+    fits = (sk != NONE) & (rank_last < n_free)
+    free_cols = jnp.argsort(used_columns, stable=True).astype(I32)  # free columns first, ascending
+    c = used_columns.shape[0]
+    col_a = free_cols[jnp.clip(rank_a, 0, c - 1)]
+    col_b = free_cols[jnp.clip(rank_a + 1, 0, c - 1)]
+    # Groups that fit form a prefix of the ranks, so their numbers stay contiguous.
+    n_nodes = jnp.sum(first & fits & (sk == ADD_NODE), dtype=I32)
+    n_links = jnp.sum(first & fits & (sk == ADD_LINK), dtype=I32)
+    s_node = next_node_id + node_rank
+    s_ia = jnp.where(sk == ADD_NODE, next_innov + 2 * node_rank, next_innov + 2 * n_nodes + link_rank)
+    dropped = (sk != NONE) & ~fits
+    unsort = lambda x: jnp.zeros_like(x).at[order].set(x)
+    new_kind = unsort(jnp.where(fits, sk, NONE).astype(I32))
+    return (new_kind, unsort(s_node.astype(I32)), unsort(s_ia.astype(I32)), unsort((s_ia + 1).astype(I32)),
+            unsort(col_a), unsort(col_b), next_node_id + n_nodes, next_innov + 2 * n_nodes + n_links,
+            n_nodes, n_links, jnp.sum(dropped, dtype=I32))
+
+
+def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_a, innov_b, col_a, col_b,
+                    params: NEATParams, config: NEATConfig) -> Genome:
+    """Write a structural mutation with its assigned ids and columns.
+
+    Add node splits the link in column ``key1``: the link is disabled, a hidden node ``node_id`` is
+    added, the link into it gets weight 1 (innovation ``innov_a``, column ``col_a``), the link out of it
+    the old weight (``innov_b``, ``col_b``). Add link joins node ids ``key1 -> key2`` with a
+    U(-init, init) weight (``innov_a``, ``col_a``).
+    """
+    k_w, k_act = jax.random.split(key)
+    is_node, is_link = kind == ADD_NODE, kind == ADD_LINK
+    split = jnp.clip(key1, 0, config.max_conns - 1)
+    h_slot = config.n_fixed + n_hidden(g)
+    if config.random_hidden_activation:
+        act = jax.random.randint(k_act, (), 0, len(config.activation_options), I32)
+    else:
+        act = jnp.asarray(config.act_id(config.hidden_activation), I32)
+    put_node = is_node & (jnp.arange(config.max_nodes) == h_slot)
+    g = g.replace(node_id=jnp.where(put_node, node_id, g.node_id),
+                  node_kind=jnp.where(put_node, HIDDEN, g.node_kind),
+                  node_act=jnp.where(put_node, act, g.node_act),
+                  node_valid=g.node_valid | put_node)
+    cols = jnp.arange(config.max_conns)
+    old_src, old_dst, old_w = g.conn_src[split], g.conn_dst[split], g.conn_weight[split]
+    r = params.weight_init_range
+    link_w = jax.random.uniform(k_w, (), jnp.float32, -r, r)
+    put_a = (is_node | is_link) & (cols == col_a)
+    put_b = is_node & (cols == col_b)
+    src = jnp.where(put_a, jnp.where(is_node, old_src, key1), jnp.where(put_b, node_id, g.conn_src))
+    dst = jnp.where(put_a, jnp.where(is_node, node_id, key2), jnp.where(put_b, old_dst, g.conn_dst))
+    w = jnp.where(put_a, jnp.where(is_node, 1.0, link_w), jnp.where(put_b, old_w, g.conn_weight))
+    innov = jnp.where(put_a, innov_a, jnp.where(put_b, innov_b, g.conn_innov))
+    enabled = (g.conn_enabled & ~(is_node & (cols == split))) | put_a | put_b
+    return g.replace(conn_src=src.astype(I32), conn_dst=dst.astype(I32), conn_weight=w,
+                     conn_innov=innov.astype(I32), conn_enabled=enabled, conn_valid=g.conn_valid | put_a | put_b)
+
+
+def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_id: jax.Array,
+                      next_innov: jax.Array, params: NEATParams, config: NEATConfig):
+    """Mutate every genome of ``pop`` (``[P, ...]``) not ``frozen`` (elites), with innovation numbers
+    and columns shared across the population. Returns ``(pop, next_node_id, next_innov, counters)``.
+
+    Per genome (the order of Stanley's NEAT C++): one structural mutation if drawn; otherwise, with
+    ``weight_mutate_prob``, weight mutation, and re-enabling and activation mutation at their rates.
+    """
+    p = frozen.shape[0]
+    keys = jax.random.split(key, (p, 5))
+    link_pick, link_skipped = pick_links(keys[:, 0], pop, frozen, params, config)
+    kind, key1, key2, (node_full, link_full, l_exh) = jax.vmap(
+        lambda k, g, lp: propose_structure(k, g, params, config, lp))(keys[:, 0], pop, link_pick)
+    l_exh = l_exh & ~link_skipped
+    kind = jnp.where(frozen, NONE, kind)
+    split_innov = jnp.take_along_axis(pop.conn_innov, jnp.clip(key1, 0, config.max_conns - 1)[:, None], 1)[:, 0]
+    used = jnp.any(pop.conn_valid, axis=0)
+    kind, node_id, ia, ib, ca, cb, next_node_id, next_innov, n_nodes, n_links, dropped = assign_innovations(
+        kind, key1, key2, split_innov, used, next_node_id, next_innov)
+
+    def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz):
+        g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config)
+        light = (kd == NONE) & ~frz
+        ku = jax.random.uniform(k[2], (3,))
+        gw = mutate_weights(k[3], g2, params)
+        g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[0] < params.weight_mutate_prob), y, x), g2, gw)
+        gr = mutate_reenable(k[4], g2)
+        g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[1] < params.reenable_prob), y, x), g2, gr)
+        if len(config.activation_options) > 1:
+            ga = mutate_activation(jax.random.fold_in(k[4], 1), g2, config)
+            g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[2] < params.activation_mutate_prob), y, x),
+                              g2, ga)
+        return g2
+
+    pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen)
+    nf = ~frozen
+    counters = Counters(node_overflow=jnp.sum(node_full & nf, dtype=I32),
+                        link_overflow=jnp.sum((link_full | link_skipped) & nf, dtype=I32) + dropped,
+                        link_exhausted=jnp.sum(l_exh & nf, dtype=I32), species_overflow=jnp.zeros((), I32),
+                        new_nodes=n_nodes, new_links=n_links)
+    return pop, next_node_id, next_innov, counters
+
+
+# --------------------------------------------------------------------------------------------------
+# Validity (host side, for tests and checkpoint checks)
+
+
+def check_genome(g, config: NEATConfig, weight_range: float | None = None) -> list[str]:
+    """Every broken invariant of one genome (numpy or jax arrays); an empty list if it is valid."""
+    g = jax.tree.map(np.asarray, g)
+    errs = []
+    f = config.n_fixed
+    nv, kind, ids = g.node_valid, g.node_kind, g.node_id
+    if not np.array_equal(ids[:f], np.arange(f)) or not nv[:f].all():
+        errs.append("fixed nodes do not have id == slot")
+    exp_kind = np.array([INPUT] * config.n_inputs + [BIAS] + [OUTPUT] * config.n_outputs)
+    if not np.array_equal(kind[:f], exp_kind):
+        errs.append("fixed node kinds wrong")
+    hid = nv[f:]
+    if hid.size and not np.array_equal(hid, np.sort(hid)[::-1]):
+        errs.append("hidden nodes are not a prefix")
+    if not np.array_equal(nv, ids >= 0) or not np.all(kind[f:][hid] == HIDDEN) or not np.all(kind[~nv] == EMPTY):
+        errs.append("node masks inconsistent")
+    if len(set(ids[nv].tolist())) != int(nv.sum()):
+        errs.append("duplicate node ids")
+    if np.any((g.node_act < 0) | (g.node_act >= len(config.activation_options))):
+        errs.append("activation id out of range")
+    cv = g.conn_valid
+    inn = g.conn_innov[cv]
+    if len(set(inn.tolist())) != inn.size or np.any(inn < 0):
+        errs.append("innovation numbers not unique")
+    if (np.any(g.conn_innov[~cv] != -1) or np.any(g.conn_src[~cv] != -1) or np.any(g.conn_dst[~cv] != -1)
+            or np.any(g.conn_enabled[~cv]) or np.any(g.conn_weight[~cv] != 0)):
+        errs.append("empty connection columns not cleared")
+    id_kind = {int(i): int(k) for i, k in zip(ids[nv], kind[nv])}
+    pairs = set()
+    edges = []
+    for s, d in zip(g.conn_src[cv].tolist(), g.conn_dst[cv].tolist()):
+        if s not in id_kind or d not in id_kind:
+            errs.append(f"link {s}->{d} points at a missing node")
+            continue
+        if id_kind[s] not in (INPUT, BIAS, HIDDEN) or id_kind[d] not in (HIDDEN, OUTPUT):
+            errs.append(f"link {s}->{d} joins wrong node kinds")
+        if (s, d) in pairs:
+            errs.append(f"duplicate link {s}->{d}")
+        pairs.add((s, d))
+        edges.append((s, d))
+    w = g.conn_weight[cv]
+    if not np.all(np.isfinite(w)) or (weight_range is not None and np.any(np.abs(w) > weight_range + 1e-6)):
+        errs.append("weight out of range")
+    # Acyclic (Kahn) over all links.
+    indeg = {i: 0 for i in id_kind}
+    out = {i: [] for i in id_kind}
+    for s, d in edges:
+        if s in out and d in indeg:
+            out[s].append(d)
+            indeg[d] += 1
+    queue = [i for i, v in indeg.items() if v == 0]
+    seen = 0
+    while queue:
+        i = queue.pop()
+        seen += 1
+        for j in out[i]:
+            indeg[j] -= 1
+            if indeg[j] == 0:
+                queue.append(j)
+    if seen != len(indeg):
+        errs.append("the network has a cycle")
+    return errs
+
+
+def check_population(pop, config: NEATConfig, weight_range: float | None = None) -> list[str]:
+    """:func:`check_genome` on every genome, plus across the population: one innovation number per
+    structural gene (the same number always joins the same pair of nodes, in the same column)."""
+    pop = jax.tree.map(np.asarray, pop)
+    errs = []
+    by_innov: dict[int, tuple[int, int, int]] = {}
+    for i in range(pop.node_id.shape[0]):
+        g = jax.tree.map(lambda x: x[i], pop)
+        errs += [f"genome {i}: {e}" for e in check_genome(g, config, weight_range)]
+        cols = np.flatnonzero(g.conn_valid)
+        for c, inn, s, d in zip(cols.tolist(), g.conn_innov[cols].tolist(), g.conn_src[cols].tolist(),
+                                g.conn_dst[cols].tolist()):
+            if by_innov.setdefault(inn, (s, d, c)) != (s, d, c):
+                errs.append(f"genome {i}: innovation {inn} joins {s}->{d} in column {c}, elsewhere {by_innov[inn]}")
+    return errs

@@ -1,0 +1,121 @@
+"""Turning a genome into a network that evaluates fast, and evaluating it.
+
+:func:`build` runs once per genome per generation. It orders the hidden nodes topologically (by their
+longest path from the inputs over enabled links) and lays the enabled links out as two dense matrices
+in that order: ``w_in`` from the inputs and bias, ``w_hid`` from the hidden nodes, one row per hidden
+node then per output. :func:`forward` then computes the hidden nodes in order, each one a dot product
+with the values before it, and the outputs last: no gathers, no data-dependent control flow, the same
+arithmetic for every genome of a population, so that it vectorises over genomes and over inputs.
+
+:func:`forward` is written *batch-last*: ``x`` is ``[n_inputs, *B]`` and each network field may carry
+the same trailing ``*B`` (one network per lane, as the keep-away evaluator lays out policies) or none.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from kx.neat import activations
+from kx.neat.genome import hidden_reach, links
+from kx.neat.types import HIDDEN, Genome, NEATConfig
+
+I32 = jnp.int32
+
+
+@struct.dataclass
+class Network:
+    """A genome's network in evaluation order (``R = n_hidden + n_outputs`` rows)."""
+
+    w_in: jax.Array  # [R, n_inputs + 1, *B] weights from inputs and the bias (last column)
+    w_hid: jax.Array  # [R, n_hidden, *B] weights from hidden nodes; row i < n_hidden uses columns < i only
+    act: jax.Array  # [R, *B] int32 activation id of each row's node
+
+
+def build(g: Genome, config: NEATConfig) -> Network:
+    """The network of one genome (vmap over a population).
+
+    Hidden nodes are ordered by their number of hidden ancestors over enabled links: a node that
+    reaches another has strictly fewer ancestors than it, so the order is topological.
+    """
+    h, f, o = config.n_hidden, config.n_fixed, config.n_outputs
+    n_in1 = config.n_inputs + 1
+    lk = links(g, config)
+    live, src, dst = lk.enabled, lk.src, lk.dst
+    if h:
+        n_anc = jnp.sum(hidden_reach(lk, config, enabled_only=True), axis=0, dtype=I32)
+        hid = jnp.arange(h, dtype=I32)
+        sort_key = jnp.where(g.node_kind[f:] == HIDDEN, n_anc * h + hid, jnp.iinfo(I32).max)
+        order = jnp.argsort(sort_key).astype(I32)  # row -> hidden slot offset
+        rank = jnp.argsort(order).astype(I32)  # hidden slot offset -> row
+    else:
+        order = rank = jnp.zeros((0,), I32)
+    # Row of each node slot (outputs after the hidden rows), and column among the hidden nodes.
+    row_of = jnp.concatenate([jnp.full((n_in1,), -1, I32), jnp.arange(h, h + o, dtype=I32), rank])
+    hcol_of = jnp.concatenate([jnp.full((f,), -1, I32), rank])
+    w_rows = ((row_of[dst][:, None] == jnp.arange(h + o)) & live[:, None]) * lk.weight[:, None]  # [K, R]
+    w_in = w_rows.T @ (src[:, None] == jnp.arange(n_in1)).astype(jnp.float32)
+    w_hid = w_rows.T @ (hcol_of[src][:, None] == jnp.arange(h)).astype(jnp.float32)
+    act_rows = jnp.concatenate([g.node_act[f:][order], g.node_act[config.first_output: f]])
+    return Network(w_in=w_in, w_hid=w_hid, act=act_rows.astype(I32))
+
+
+def forward(net: Network, x: jax.Array, config: NEATConfig) -> jax.Array:
+    """Outputs ``[n_outputs, *B]`` of a network for inputs ``x`` ``[n_inputs, *B]`` (batch-last)."""
+    h = config.n_hidden
+    opts = config.activation_options
+    nb = x.ndim - 1
+    w_in = net.w_in.reshape(net.w_in.shape[:2] + (1,) * (nb + 2 - net.w_in.ndim) + net.w_in.shape[2:])
+    w_hid = net.w_hid.reshape(net.w_hid.shape[:2] + (1,) * (nb + 2 - net.w_hid.ndim) + net.w_hid.shape[2:])
+    act = net.act.reshape(net.act.shape[:1] + (1,) * (nb + 1 - net.act.ndim) + net.act.shape[1:])
+    xb = jnp.concatenate([x, jnp.ones((1,) + x.shape[1:], x.dtype)], axis=0)
+    z = jnp.sum(w_in * xb[None], axis=1)  # [R, *B]
+    hs = []
+    for i in range(h):
+        zi = z[i]
+        for j in range(i):
+            zi = zi + w_hid[i, j] * hs[j]
+        hs.append(activations.apply(act[i], zi, opts))
+    out = z[h:]
+    if h:
+        out = out + jnp.sum(w_hid[h:] * jnp.stack(hs)[None], axis=1)
+    return activations.apply(act[h:], out, opts)
+
+
+def activate(net: Network, x: jax.Array, config: NEATConfig) -> jax.Array:
+    """Outputs ``[..., n_outputs]`` for inputs ``[..., n_inputs]`` of one network (batch-first
+    convenience over :func:`forward`)."""
+    lead = x.shape[:-1]
+    flat = x.reshape(-1, x.shape[-1]).T
+    return forward(net, flat, config).T.reshape(lead + (config.n_outputs,))
+
+
+def reference_activate(g, x, config: NEATConfig) -> list[float]:
+    """Plain-Python evaluation of one genome straight from its genes, for the tests: each node's value
+    is its activation of the weighted sum over its enabled in-links, computed by recursion."""
+    g = jax.tree.map(np.asarray, g)
+    nodes = {int(i): (int(k), int(a)) for i, k, a, v in zip(g.node_id, g.node_kind, g.node_act, g.node_valid) if v}
+    incoming: dict[int, list[tuple[int, float]]] = {i: [] for i in nodes}
+    for s, d, w, e, v in zip(g.conn_src, g.conn_dst, g.conn_weight, g.conn_enabled, g.conn_valid):
+        if v and e:
+            incoming[int(d)].append((int(s), float(w)))
+    memo: dict[int, float] = {}
+
+    def value(i: int) -> float:
+        if i in memo:
+            return memo[i]
+        if i < config.n_inputs:
+            v = float(x[i])
+        elif i == config.n_inputs:
+            v = 1.0
+        else:
+            total = math.fsum(w * value(s) for s, w in incoming[i])
+            v = activations.PY_ACTIVATIONS[config.activation_options[nodes[i][1]]](total)
+        memo[i] = v
+        return v
+
+    return [value(config.first_output + k) for k in range(config.n_outputs)]

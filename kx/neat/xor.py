@@ -1,0 +1,104 @@
+"""XOR, NEAT's validation task (Stanley & Miikkulainen 2002, section 4.1), as an example of the API.
+
+Fitness is ``(4 - sum |output - target|)^2`` over the four input pairs; a network solves XOR when every
+output is on the right side of 0.5. :func:`run` evolves many independent populations at once: the
+whole run (up to ``max_generations`` generations, stopping once every population has a solution) is
+one jitted ``lax.while_loop`` over a generation step vmapped over seeds.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from kx.neat import algorithm
+from kx.neat.network import forward
+from kx.neat.types import HIDDEN, NEATConfig, NEATParams
+
+XOR_INPUTS = jnp.array([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]], jnp.float32)
+XOR_TARGETS = jnp.array([0.0, 1.0, 1.0, 0.0], jnp.float32)
+
+
+def evaluate(population, config: NEATConfig) -> tuple[jax.Array, jax.Array]:
+    """``(fitness [P], solved [P])`` of a population on XOR."""
+    nets = algorithm.build_networks(population, config)
+    out = jax.vmap(lambda n: forward(n, XOR_INPUTS.T, config)[0])(nets)  # [P, 4]
+    err = jnp.abs(out - XOR_TARGETS)
+    return (4.0 - jnp.sum(err, axis=1)) ** 2, jnp.all(err < 0.5, axis=1)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "max_generations", "width"))
+def run(keys: jax.Array, params: NEATParams, config: NEATConfig, max_generations: int = 300,
+        width: int | None = None) -> dict:
+    """Independent XOR runs, one per key (``[R]`` keys), ``width`` populations evolving side by side.
+
+    A run stops at its first solution or after ``max_generations`` generations, and its slot starts the
+    next run at once, so the batch stays full until the queue is empty. Each run depends only on its
+    own key. Returns per run: ``solved`` (bool), ``generations`` (generations evaluated up to and
+    including the one with the first solution; ``max_generations`` if none), ``evaluations``
+    (``generations * population_size``), ``hidden`` and ``links`` (enabled) of the first solution, and
+    ``n_species`` ``[R, max_generations]`` (species per evaluated generation, -1 after the run ended).
+    """
+    r = keys.shape[0]
+    w = min(width or r, r)
+    split = jax.vmap(jax.random.split)(keys)  # [R, 2]: init key, loop key
+    init_one = lambda run_id: algorithm.init(split[jnp.minimum(run_id, r - 1), 0], params, config)
+    tell = jax.vmap(lambda k, pop, fit, st: algorithm.tell(k, pop, fit, st, params, config))
+    rows = jnp.arange(w)
+
+    def cond(c):
+        return jnp.any(c["run"] < r)
+
+    def body(c):
+        states, run, age = c["states"], c["run"], c["age"]
+        active = run < r
+        fit, solved = jax.vmap(lambda pop: evaluate(pop, config))(states.population)
+        any_solved = jnp.any(solved, axis=1)
+        first = jnp.argmax(solved, axis=1)
+        pop = states.population
+        sol_h = jnp.sum(pop.node_kind[rows, first] == HIDDEN, axis=-1)
+        sol_l = jnp.sum(pop.conn_valid[rows, first] & pop.conn_enabled[rows, first], axis=-1)
+        loop_keys = split[jnp.minimum(run, r - 1), 1]
+        new_states, metrics = tell(jax.vmap(jax.random.fold_in)(loop_keys, age), pop, fit, states)
+        finished = active & (any_solved | (age + 1 >= max_generations))
+        idx = jnp.where(active, run, r)  # out-of-range rows are dropped
+        out = dict(c["out"])
+        out["n_species"] = out["n_species"].at[idx, jnp.minimum(age, max_generations - 1)].set(
+            metrics["n_species"], mode="drop")
+        fin = jnp.where(finished, run, r)
+        out["solved"] = out["solved"].at[fin].set(any_solved, mode="drop")
+        out["generations"] = out["generations"].at[fin].set(age + 1, mode="drop")
+        out["hidden"] = out["hidden"].at[fin].set(sol_h, mode="drop")
+        out["links"] = out["links"].at[fin].set(sol_l, mode="drop")
+        # Finished slots take the next runs in the queue.
+        order = jnp.cumsum(finished) - 1
+        new_run = jnp.where(finished, c["next"] + order, run)
+        refill = jax.lax.cond(jnp.any(finished & (new_run < r)), lambda: jax.vmap(init_one)(new_run),
+                              lambda: new_states)
+        sel = lambda a, b: jnp.where(finished.reshape((w,) + (1,) * (a.ndim - 1)), a, b)
+        return {"states": jax.tree.map(sel, refill, new_states), "run": new_run,
+                "age": jnp.where(finished, 0, age + 1), "next": c["next"] + jnp.sum(finished), "out": out}
+
+    z = jnp.zeros((r,), jnp.int32)
+    carry = {"states": jax.vmap(init_one)(jnp.arange(w)), "run": jnp.arange(w), "age": jnp.zeros((w,), jnp.int32),
+             "next": jnp.asarray(w, jnp.int32),
+             "out": {"solved": jnp.zeros((r,), bool), "generations": z, "hidden": z, "links": z,
+                     "n_species": jnp.full((r, max_generations), -1, jnp.int32)}}
+    out = jax.lax.while_loop(cond, body, carry)["out"]
+    out["evaluations"] = out["generations"] * config.population_size
+    return out
+
+
+def summary(result: dict) -> dict:
+    """Host-side figures of :func:`run`'s result, in the form the benchmark prints."""
+    res = jax.tree.map(np.asarray, result)
+    solved = res["solved"]
+    ev = res["evaluations"][solved]
+    return {"runs": int(solved.size), "solved": int(solved.sum()),
+            "mean_evaluations": float(ev.mean()) if ev.size else float("nan"),
+            "median_evaluations": float(np.median(ev)) if ev.size else float("nan"),
+            "mean_generations": float(res["generations"][solved].mean()) if ev.size else float("nan"),
+            "mean_hidden": float(res["hidden"][solved].mean()) if ev.size else float("nan")}

@@ -1,0 +1,326 @@
+"""NEAT on fixed-capacity tensors: operators, invariants, network evaluation, the generation step."""
+
+import functools
+
+import chex
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from kx.neat import algorithm as alg
+from kx.neat import genome as gn
+from kx.neat import network as nw
+from kx.neat import presets, xor
+from kx.neat.types import HIDDEN, NEATConfig, NEATError, NEATParams
+
+# A small shape that compiles fast; high structural rates so that capacity runs out and is counted.
+CFG = NEATConfig(n_inputs=3, n_outputs=2, population_size=24, max_nodes=12, max_conns=40, species_capacity=6)
+CPPN = NEATConfig(n_inputs=4, n_outputs=2, population_size=24, max_nodes=12, max_conns=40, species_capacity=6,
+                  activation_options=("sigmoid", "identity", "gaussian", "bipolar_sigmoid", "abs", "sine"),
+                  hidden_activation="gaussian", output_activation="identity", random_hidden_activation=True)
+WILD = NEATParams(add_node_prob=0.3, add_link_prob=0.4, reenable_prob=0.3, activation_mutate_prob=0.3,
+                  target_species=4, mutation_only_prob=0.3, interspecies_prob=0.2)
+
+
+@functools.lru_cache(maxsize=None)
+def _tell(config):
+    return jax.jit(functools.partial(alg.tell, config=config))
+
+
+@functools.lru_cache(maxsize=None)
+def _init(config):
+    return jax.jit(functools.partial(alg.init, config=config))
+
+
+def evolve(config, params, generations, seed=0, fitness_fn=None):
+    """Run ``generations`` tell() steps with random (or given) fitness; return states and metrics."""
+    key = jax.random.key(seed)
+    state = _init(config)(key, params)
+    states, metrics = [state], []
+    for g in range(generations):
+        k_fit, k_tell = jax.random.split(jax.random.fold_in(key, g))
+        fit = (jax.random.uniform(k_fit, (config.population_size,)) if fitness_fn is None
+               else fitness_fn(state.population))
+        state, m = _tell(config)(k_tell, state.population, fit, state, params)
+        states.append(state)
+        metrics.append(m)
+    return states, metrics
+
+
+@functools.lru_cache(maxsize=None)
+def wild_run(config=CFG, generations=120):
+    return evolve(config, WILD, generations, seed=1)
+
+
+def one(pop, i):
+    return jax.tree.map(lambda x: x[i], pop)
+
+
+# ------------------------------------------------------------------------------------------ invariants
+
+
+def test_thousands_of_mutations_and_crossovers_keep_every_genome_valid():
+    states, metrics = wild_run()
+    # 120 generations x 24 offspring = 2880 offspring, most of them crossed and mutated.
+    for state in states[::10] + [states[-1]]:
+        assert gn.check_population(state.population, CFG, WILD.weight_range) == []
+    final = states[-1].population
+    assert int(jnp.max(jnp.sum(final.node_kind == HIDDEN, axis=1))) == CFG.n_hidden  # capacity reached
+    assert sum(int(m["node_overflow"]) for m in metrics) > 0  # ... and overflow was counted, not written
+    assert sum(int(m["new_links"]) for m in metrics) > 50
+
+
+def test_cppn_genomes_stay_valid_and_carry_activations():
+    states, _ = wild_run(CPPN, 60)
+    pop = states[-1].population
+    assert gn.check_population(pop, CPPN, WILD.weight_range) == []
+    acts = np.asarray(pop.node_act)[np.asarray(pop.node_kind) == HIDDEN]
+    assert len(set(acts.tolist())) >= 4
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.integers(0, 23), st.integers(0, 23))
+def test_crossover_with_itself_is_identity_and_distance_is_a_semimetric(seed, i, j):
+    pop = wild_run()[0][-1].population
+    a, b = one(pop, i), one(pop, j)
+    key = jax.random.key(seed)
+    child = gn.crossover(key, a, a, WILD)
+    chex.assert_trees_all_equal(child, a)
+    assert float(gn.distance(a, a, WILD)) == 0.0
+    assert float(gn.distance(a, b, WILD)) == pytest.approx(float(gn.distance(b, a, WILD)), abs=1e-6)
+    # The child of two parents has the fitter parent's structure.
+    c = gn.crossover(key, a, b, WILD)
+    for f in ("node_id", "node_kind", "conn_innov", "conn_src", "conn_dst", "conn_valid"):
+        np.testing.assert_array_equal(getattr(c, f), getattr(a, f))
+    assert gn.check_genome(c, CFG, WILD.weight_range) == []
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 10_000))
+def test_fast_network_equals_plain_python(seed):
+    rng = np.random.default_rng(seed)
+    for config in (CFG, CPPN):
+        pop = wild_run(config, 120 if config is CFG else 60)[0][-1].population
+        nets = alg.build_networks(pop, config)
+        x = rng.uniform(-2, 2, (4, config.n_inputs)).astype(np.float32)
+        for i in rng.choice(config.population_size, 4, replace=False):
+            out = np.asarray(nw.activate(one(nets, i), jnp.asarray(x), config))
+            ref = np.array([nw.reference_activate(one(pop, i), xi, config) for xi in x])
+            np.testing.assert_allclose(out, ref, rtol=2e-5, atol=2e-5)
+
+
+# ------------------------------------------------------------------------------ hand-computed values
+
+
+def _hand_genome():
+    """inputs 0, 1; bias 2; output 3; hidden 4 with links 0->4 (w 2, innov 7), 4->3 (w -1, innov 8),
+    1->3 (w 0.5, innov 1), bias->3 (w 0.25, innov 2), 0->3 disabled (w 3, innov 0)."""
+    config = NEATConfig(n_inputs=2, n_outputs=1, population_size=2, max_nodes=6, max_conns=10, species_capacity=2)
+    g = gn.initial_genome(jax.random.key(0), config, NEATParams())
+    i32 = lambda v: jnp.asarray(v, jnp.int32)
+    g = g.replace(
+        node_id=g.node_id.at[4].set(4), node_kind=g.node_kind.at[4].set(HIDDEN),
+        node_valid=g.node_valid.at[4].set(True),
+        conn_innov=i32([0, 1, 2, -1, -1, -1, 7, 8, -1, -1]), conn_src=i32([0, 1, 2, -1, -1, -1, 0, 4, -1, -1]),
+        conn_dst=i32([3, 3, 3, -1, -1, -1, 4, 3, -1, -1]),
+        conn_weight=jnp.asarray([3.0, 0.5, 0.25, 0, 0, 0, 2.0, -1.0, 0, 0], jnp.float32),
+        conn_enabled=jnp.asarray([False, True, True] + [False] * 3 + [True, True, False, False]),
+        conn_valid=jnp.asarray([True, True, True] + [False] * 3 + [True, True, False, False]))
+    assert gn.check_genome(g, config) == []
+    return g, config
+
+
+def test_forward_hand_computed():
+    g, config = _hand_genome()
+    sig = lambda z: 1 / (1 + np.exp(-4.9 * z))
+    x = np.array([0.3, -0.7], np.float32)
+    h = sig(2.0 * 0.3)
+    want = sig(-1.0 * h + 0.5 * -0.7 + 0.25)
+    out = nw.activate(nw.build(g, config), jnp.asarray(x), config)
+    assert float(out[0]) == pytest.approx(want, rel=1e-6)
+
+
+def test_distance_hand_computed():
+    g, config = _hand_genome()
+    # b: innovations 0, 1, 2 only (weights 3, 1.5, 0.25): matching 0, 1, 2 (|dw| = 0, 1, 0); 7 and 8 are
+    # excess (beyond b's largest, 2). Add to b an innovation 5 (disjoint in a: 5 < 8).
+    b = g.replace(conn_weight=g.conn_weight.at[1].set(1.5).at[6].set(0).at[7].set(0).at[3].set(0.5),
+                  conn_valid=g.conn_valid.at[6].set(False).at[7].set(False).at[3].set(True),
+                  conn_enabled=g.conn_enabled.at[6].set(False).at[7].set(False).at[3].set(True),
+                  conn_innov=g.conn_innov.at[6].set(-1).at[7].set(-1).at[3].set(5),
+                  conn_src=g.conn_src.at[6].set(-1).at[7].set(-1).at[3].set(0),
+                  conn_dst=g.conn_dst.at[6].set(-1).at[7].set(-1).at[3].set(3))
+    p = NEATParams(c1=1.0, c2=2.0, c3=0.5)
+    # E = 2 (7, 8), D = 1 (5), W = 1/3, N = 1 (both under 20 genes).
+    assert float(gn.distance(g, b, p)) == pytest.approx(1.0 * 2 + 2.0 * 1 + 0.5 / 3, rel=1e-6)
+    assert float(gn.distance(g, b, p.replace(small_genome=0))) == pytest.approx((2 + 2.0) / 5 + 0.5 / 3, rel=1e-6)
+
+
+def test_same_structural_mutation_in_one_generation_gets_one_number():
+    i32 = lambda v: jnp.asarray(v, jnp.int32)
+    kind = i32([gn.ADD_NODE, gn.ADD_LINK, gn.ADD_NODE, gn.ADD_LINK, gn.NONE, gn.ADD_LINK, gn.ADD_NODE])
+    key1 = i32([3, 5, 3, 5, -1, 6, 4])  # add node: split column; add link: source id
+    key2 = i32([-1, 9, -1, 9, -1, 9, -1])
+    split_innov = i32([30, 0, 30, 0, 0, 0, 31])
+    used = jnp.zeros((16,), bool).at[:4].set(True)
+    out = gn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
+    new_kind, node_id, ia, ib, ca, cb, nn, ni, n_nodes, n_links, dropped = [np.asarray(o) for o in out]
+    assert node_id[0] == node_id[2] != node_id[6]
+    assert ia[0] == ia[2] and ib[0] == ib[2] and ia[0] != ia[6]
+    assert ia[1] == ia[3] != ia[5]
+    assert ca[0] == ca[2] and ca[1] == ca[3]
+    # 2 distinct splits (2 innovations each) and 2 distinct links: 6 numbers, 6 free columns from 4 on.
+    assert (int(nn), int(ni), int(n_nodes), int(n_links), int(dropped)) == (102, 506, 2, 2, 0)
+    assert sorted({*ia[[0, 6]], *ib[[0, 6]], *ia[[1, 5]]}) == list(range(500, 506))
+    assert sorted({*ca[[0, 6]], *cb[[0, 6]], *ca[[1, 5]]}) == list(range(4, 10))
+    # With only 3 free columns: the first split fits (2 columns); the second split (columns 3 and 4 in
+    # rank order) and both new links (ranks 5, 6: after every split) do not, and are dropped.
+    used = jnp.ones((16,), bool).at[10:13].set(False)
+    out = gn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
+    new_kind, node_id, ia, ib, ca, cb, nn, ni, n_nodes, n_links, dropped = [np.asarray(o) for o in out]
+    assert list(new_kind) == [1, 0, 1, 0, 0, 0, 0]
+    assert (int(nn), int(ni), int(n_nodes), int(n_links), int(dropped)) == (101, 502, 1, 0, 4)
+    assert sorted({int(ca[0]), int(cb[0])}) == [10, 11]
+
+
+def test_allocate_hand_computed():
+    eligible = jnp.array([True, True, True, False])
+    n = alg.allocate(jnp.array([1.0, 1.0, 2.0, 9.0]), eligible, 8, jnp.int32(0))
+    assert list(np.asarray(n)) == [2, 2, 4, 0]
+    n = alg.allocate(jnp.array([1.0, 1.0, 6.0, 0.0]), eligible, 10, jnp.int32(4))  # 6/8 of 10 capped at 4
+    assert list(np.asarray(n)) == [3, 3, 4, 0]
+    n = alg.allocate(jnp.array([0.0, 0.0, 0.0, 0.0]), eligible, 7, jnp.int32(0))  # no fitness: equal
+    assert int(n.sum()) == 7 and list(np.asarray(n))[3] == 0 and max(n) - min(n[:3]) <= 1
+
+
+# ------------------------------------------------------------------------------------ generation step
+
+
+def test_tell_reproduces_from_the_fittest_and_keeps_the_champion():
+    states, metrics = evolve(CFG, NEATParams(target_species=3), 1, seed=3)
+    s0, s1 = states
+    fit = jax.random.uniform(jax.random.split(jax.random.fold_in(jax.random.key(3), 0))[0], (24,))
+    champ = one(s0.population, int(jnp.argmax(fit)))
+    assert float(s1.best_fitness) == pytest.approx(float(fit.max()))
+    chex.assert_trees_all_equal(s1.best_genome, champ)
+    assert int(metrics[0]["offspring"].sum()) == 24
+    assert int(s1.generation) == 1
+
+
+def test_stagnant_species_get_no_offspring():
+    state = _init(CFG)(jax.random.key(0), NEATParams())
+    # Two species; species 1 has not improved for 15 generations and is not the best.
+    sp = jnp.where(jnp.arange(24) < 12, 0, 1).astype(jnp.int32)
+    state = state.replace(species=sp, species_alive=jnp.zeros(6, bool).at[:2].set(True),
+                          species_best=jnp.full(6, jnp.inf).at[0].set(-jnp.inf), generation=jnp.int32(20),
+                          species_improved=jnp.zeros(6, jnp.int32).at[0].set(20))
+    fit = jnp.where(sp == 0, 2.0, 1.0)
+    _, m = _tell(CFG)(jax.random.key(1), state.population, fit, state, NEATParams())
+    assert list(np.asarray(m["offspring"])[:2]) == [24, 0]
+    assert int(m["stagnant_species"]) == 1
+
+
+def test_tell_is_deterministic_jit_equals_nojit_and_vmap_equals_loop():
+    params = WILD
+    state = _init(CFG)(jax.random.key(5), params)
+    fit = jax.random.uniform(jax.random.key(6), (24,))
+    a = _tell(CFG)(jax.random.key(7), state.population, fit, state, params)
+    b = _tell(CFG)(jax.random.key(7), state.population, fit, state, params)
+    chex.assert_trees_all_equal(a, b)
+    c = _tell(CFG)(jax.random.key(8), state.population, fit, state, params)
+    assert not np.array_equal(np.asarray(a[0].population.conn_weight), np.asarray(c[0].population.conn_weight))
+    with jax.disable_jit():
+        d = alg.tell(jax.random.key(7), state.population, fit, state, params, CFG)
+    chex.assert_trees_all_close(a, d, rtol=1e-6, atol=1e-6)
+    keys = jax.random.split(jax.random.key(9), 3)
+    states = jax.vmap(lambda k: alg.init(k, params, CFG))(keys)
+    fits = jax.random.uniform(jax.random.key(10), (3, 24))
+    vm = jax.jit(jax.vmap(lambda k, p, f, s: alg.tell(k, p, f, s, params, CFG)))(keys, states.population, fits, states)
+    for r in range(3):
+        s_r = one(states, r)
+        loop = _tell(CFG)(keys[r], s_r.population, fits[r], s_r, params)
+        chex.assert_trees_all_close(one(vm, r), loop, rtol=1e-6, atol=1e-6)
+
+
+def test_generation_step_compiles_once():
+    @chex.assert_max_traces(n=1)
+    def step(key, pop, fit, state):
+        return alg.tell(key, pop, fit, state, WILD, CFG)
+
+    jstep = jax.jit(step)
+    state = _init(CFG)(jax.random.key(0), WILD)
+    for g in range(4):
+        state, _ = jstep(jax.random.key(g), state.population, jnp.arange(24.0) * g, state)
+
+
+def test_species_count_holds_near_the_target():
+    # XOR with the published parameters.
+    config, params = presets.xor()
+    res = xor.run(jax.random.split(jax.random.key(2), 4), params, config, max_generations=60)
+    counts = np.asarray(res["n_species"])[:, 10:]
+    live = counts >= 0
+    assert np.mean(np.abs(counts[live] - params.target_species) <= 2) >= 0.9
+    # Keep-away 13/3 genomes under Table 2's parameters, on a fitness that rewards one output.
+    config, params = presets.keepaway()
+    x = jax.random.uniform(jax.random.key(3), (13, 8))
+
+    def fitness(pop):
+        nets = alg.build_networks(pop, config)
+        return jax.vmap(lambda n: jnp.mean(nw.forward(n, x, config)[0]))(nets)
+
+    _, metrics = evolve(config, params, 30, seed=4, fitness_fn=jax.jit(fitness))
+    n = np.array([int(m["n_species"]) for m in metrics])
+    assert np.all(np.abs(n[8:] - 10) <= 2), n
+
+
+def test_bad_config_and_params_are_refused_with_the_field_name():
+    with pytest.raises(NEATError, match="max_nodes"):
+        NEATConfig(n_inputs=3, n_outputs=2, max_nodes=5)
+    with pytest.raises(NEATError, match="max_conns"):
+        NEATConfig(n_inputs=3, n_outputs=2, max_conns=7)
+    with pytest.raises(NEATError, match="activation_options"):
+        NEATConfig(n_inputs=3, n_outputs=2, activation_options=("sigmoid", "swish"))
+    with pytest.raises(NEATError, match="hidden_activation"):
+        NEATConfig(n_inputs=3, n_outputs=2, hidden_activation="sine")
+    with pytest.raises(NEATError, match="add_node_prob"):
+        NEATParams(add_node_prob=1.5).validate()
+    with pytest.raises(NEATError, match="survival_threshold"):
+        NEATParams(survival_threshold=0.0).validate()
+    with pytest.raises(NEATError, match="target_species"):
+        alg.NEAT(CFG, NEATParams(target_species=7))  # more than CFG's 6 species slots
+
+
+def test_draw_genome_writes_a_png(tmp_path):
+    from kx.neat.draw import draw_genome
+
+    pop = wild_run()[0][-1].population
+    path = draw_genome(one(pop, 0), CFG, tmp_path / "g.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 5000
+
+
+def test_xor_runs_do_not_depend_on_how_many_evolve_side_by_side():
+    config = NEATConfig(n_inputs=2, n_outputs=1, population_size=40, max_nodes=8, max_conns=32, max_genes=16,
+                        species_capacity=6)
+    params = NEATParams(target_species=4, add_node_prob=0.1, add_link_prob=0.2)
+    keys = jax.random.split(jax.random.key(11), 5)
+    wide = xor.run(keys, params, config, max_generations=25, width=5)
+    narrow = xor.run(keys, params, config, max_generations=25, width=2)
+    chex.assert_trees_all_equal(wide, narrow)
+    alone = xor.run(keys[3:4], params, config, max_generations=25, width=1)
+    chex.assert_trees_all_equal(jax.tree.map(lambda x: x[3:4], wide), alone)
+    assert np.all(np.asarray(wide["generations"]) >= 1)
+    solved = np.asarray(wide["solved"])
+    assert np.all(np.asarray(wide["generations"])[~solved] == 25)
+
+
+@pytest.mark.slow
+def test_xor_is_solved_with_the_published_parameters():
+    config, params = presets.xor()
+    res = xor.run(jax.random.split(jax.random.key(123), 20), params, config, max_generations=300, width=20)
+    s = xor.summary(res)
+    assert s["solved"] >= 19
+    assert s["mean_evaluations"] < 15_000
+    assert 1.0 <= s["mean_hidden"] <= 6.0
