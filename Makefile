@@ -19,8 +19,11 @@ test: $(STAMP)  ## the default test suite (what CI runs)
 test-slow: $(STAMP)  ## the long tests
 	$(PY) -m pytest -q -n 2 -m slow
 
-bench: $(STAMP)
+bench: $(STAMP)  ## every benchmark (neat_xor also installs the optional neat-python baseline)
+	$(PY) -m pip install -q -e '.[dev,bench]'
 	$(PY) -m kx.bench sim
+	$(PY) -m kx.bench neat_xor
+	$(PY) -m kx.bench neat_generation
 
 calibrate: $(STAMP)
 	$(PY) scripts/calibrate.py

@@ -6,6 +6,10 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``sim``: live episode-steps per second (steps of episodes still running) of the batched evaluator
   on 4500 episodes of 3v2, with the heuristic policy and with a small neural policy on the 13-input
   layout (150 random networks x 30 trials), against the plain-Python reference on the same rules.
+* ``neat_xor``: 100 XOR runs of kx's NEAT, vectorised, against neat-python 2.0.0 (optional ``bench``
+  extra) with its standard XOR configuration: solved runs, evaluations, hidden nodes, wall time.
+* ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
+  population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
 
 from __future__ import annotations
@@ -91,7 +95,165 @@ def bench_sim(args) -> None:
     print(f"sim: {heur:.0f} live-steps/s (ratio {heur / ref_rate:.1f} vs reference)")
 
 
-BENCHES = {"sim": bench_sim}
+def bench_neat_generation(args) -> None:
+    """Seconds of one NEAT generation step (``tell``: speciate and reproduce) against evaluating the same
+    population of 150 networks on 30 keep-away trials (3v2, 13/3 layout), generation by generation of a
+    real run, both after compilation."""
+    import jax
+    import numpy as np
+
+    from kx.evolve.policy import neat_policy
+    from kx.neat import presets
+    from kx.neat.algorithm import NEAT
+    from kx.sim import env
+    from kx.sim import evaluate as ev
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+    config, params = KeepAwayConfig.from_task("3v2"), KeepAwayParams()
+    ncfg, nparams = presets.keepaway()
+    neat = NEAT(ncfg, nparams)
+    policy = neat_policy(config, ncfg)
+    key = jax.random.key(args.seed)
+    k_start, k_init, k_loop = jax.random.split(key, 3)
+    starts = env.reset_batch(k_start, 30, params, config)
+    state = neat.init(k_init)
+    # Compile tell once on the initial population (timed separately).
+    t0 = time.perf_counter()
+    jax.block_until_ready(neat.tell(k_loop, state.population, jax.numpy.zeros(ncfg.population_size), state))
+    compile_tell = time.perf_counter() - t0
+    print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; 3v2, population "
+          f"{ncfg.population_size}, 30 trials, {args.generations} generations; tell compiled in {compile_tell:.1f} s")
+    rows = []
+    for g in range(args.generations):
+        t0 = time.perf_counter()
+        nets = neat.networks(state.population)
+        c = ev.EvalCounters()
+        stats = ev.evaluate(policy, nets, starts, params, config, counters=c)
+        fitness = stats.fitness.mean(axis=1)
+        jax.block_until_ready(fitness)
+        t_eval = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        state, m = neat.tell(jax.random.fold_in(k_loop, g), state.population, fitness, state)
+        jax.block_until_ready(state)
+        t_tell = time.perf_counter() - t0
+        rows.append((t_eval, t_tell))
+        print(f"gen {g:3d}  best {float(m['best_fitness']):.4f}  mean {float(m['mean_fitness']):.4f}  "
+              f"species {int(m['n_species'])}  hidden {float(m['mean_hidden']):.2f}  live steps {c.live_steps}  "
+              f"eval {t_eval * 1e3:.1f} ms  tell {t_tell * 1e3:.1f} ms  ({t_tell / t_eval:.3f})", flush=True)
+    # The first generations compile the evaluator's batch widths; report the rest.
+    body = np.array(rows[args.skip:])
+    e, t = np.median(body[:, 0]), np.median(body[:, 1])
+    print(f"median over generations {args.skip}..{args.generations - 1}: evaluation {e * 1e3:.1f} ms, "
+          f"tell {t * 1e3:.1f} ms")
+    print(f"neat_generation: {t * 1e3:.2f} ms (ratio {t / e:.3f} vs evaluation)")
+
+
+# neat-python 2.0.0's standard XOR configuration (examples/xor/config-feedforward), with the one key
+# its 2.0 release added.
+NEAT_PYTHON_XOR = {
+    "NEAT": dict(fitness_criterion="max", fitness_threshold=3.9, no_fitness_termination=False, pop_size=150,
+                 reset_on_extinction=False),
+    "DefaultGenome": dict(
+        activation_default="sigmoid", activation_mutate_rate=0.0, activation_options="sigmoid",
+        aggregation_default="sum", aggregation_mutate_rate=0.0, aggregation_options="sum",
+        bias_init_mean=0.0, bias_init_stdev=1.0, bias_max_value=30.0, bias_min_value=-30.0,
+        bias_mutate_power=0.5, bias_mutate_rate=0.7, bias_replace_rate=0.1,
+        compatibility_disjoint_coefficient=1.0, compatibility_weight_coefficient=0.5,
+        conn_add_prob=0.5, conn_delete_prob=0.5, enabled_default=True, enabled_mutate_rate=0.01,
+        feed_forward=True, initial_connection="full", node_add_prob=0.2, node_delete_prob=0.2,
+        num_hidden=0, num_inputs=2, num_outputs=1, response_init_mean=1.0, response_init_stdev=0.0,
+        response_max_value=30.0, response_min_value=-30.0, response_mutate_power=0.0,
+        response_mutate_rate=0.0, response_replace_rate=0.0, weight_init_mean=0.0, weight_init_stdev=1.0,
+        weight_max_value=30, weight_min_value=-30, weight_mutate_power=0.5, weight_mutate_rate=0.8,
+        weight_replace_rate=0.1),
+    "DefaultSpeciesSet": dict(compatibility_threshold=3.0),
+    "DefaultStagnation": dict(species_fitness_func="max", max_stagnation=20, species_elitism=2),
+    "DefaultReproduction": dict(elitism=2, survival_threshold=0.2),
+}
+
+
+def _neat_python_xor(runs: int, generations: int, seed: int):
+    """neat-python on XOR, one run after another (its standard example); None if not installed."""
+    try:
+        import neat
+    except ImportError:
+        return None
+    import random
+    import tempfile
+
+    text = "".join(f"[{sec}]\n" + "".join(f"{k} = {v}\n" for k, v in kv.items()) + "\n"
+                   for sec, kv in NEAT_PYTHON_XOR.items())
+    with tempfile.NamedTemporaryFile("w", suffix=".cfg", delete=False) as f:
+        f.write(text)
+    cfg = neat.Config(neat.DefaultGenome, neat.DefaultReproduction, neat.DefaultSpeciesSet,
+                      neat.DefaultStagnation, f.name)
+    xs, ys = [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)], [0.0, 1.0, 1.0, 0.0]
+    out = []
+    t0 = time.perf_counter()
+    for r in range(runs):
+        random.seed(seed + r)
+        gens = [0]
+
+        def fitness(genomes, config):
+            gens[0] += 1
+            for _, g in genomes:
+                net = neat.nn.FeedForwardNetwork.create(g, config)
+                g.fitness = 4.0 - sum((net.activate(x)[0] - y) ** 2 for x, y in zip(xs, ys))
+
+        pop = neat.Population(cfg)
+        winner = pop.run(fitness, generations)
+        solved = winner is not None and winner.fitness >= 3.9
+        hidden = len(winner.nodes) - 1 if winner is not None else 0  # neat-python's nodes: outputs and hidden
+        out.append((solved, gens[0], hidden))
+    return out, time.perf_counter() - t0
+
+
+def bench_neat_xor(args) -> None:
+    """100 XOR runs of kx's NEAT (population 150, at most 300 generations, vectorised) against as many
+    runs of neat-python 2.0.0 with its standard XOR configuration, in one process."""
+    import jax
+    import numpy as np
+
+    from kx.neat import presets, xor
+
+    config, params = presets.xor()
+    keys = jax.random.split(jax.random.key(args.seed), args.runs)
+    t0 = time.perf_counter()
+    jax.block_until_ready(xor.run(keys, params, config, max_generations=300, width=args.width))
+    first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    res = jax.block_until_ready(xor.run(keys, params, config, max_generations=300, width=args.width))
+    kx_time = time.perf_counter() - t0
+    s = xor.summary(res)
+    counts = np.asarray(res["n_species"])[:, 10:]
+    live = counts >= 0
+    within = float(np.mean(np.abs(counts[live] - int(params.target_species)) <= 2))
+    print(f"kx ({args.runs} runs, {args.width} populations side by side; first call {first:.1f} s with "
+          f"compilation, then {kx_time:.2f} s):")
+    print(f"  solved: {s['solved']}/{s['runs']}")
+    print(f"  mean evaluations: {s['mean_evaluations']:.0f}")
+    print(f"  median evaluations: {s['median_evaluations']:.0f}")
+    print(f"  mean generations: {s['mean_generations']:.1f}")
+    print(f"  mean hidden nodes: {s['mean_hidden']:.2f}")
+    print(f"  species within 2 of {int(params.target_species)} after generation 10: {within:.1%} of generations")
+    npy = None if args.no_neat_python else _neat_python_xor(args.runs, 300, args.seed)
+    if npy is None:
+        print("neat-python: not run (install the bench extra: pip install -e '.[bench]')")
+        print(f"neat_xor: {kx_time:.2f} s (ratio nan vs neat-python)")
+        return
+    rows, np_time = npy
+    solved = [r for r in rows if r[0]]
+    ev = np.array([r[1] * 150 for r in solved])
+    print(f"neat-python 2.0.0 ({args.runs} runs, one after another, {np_time:.1f} s):")
+    print(f"  solved: {len(solved)}/{len(rows)}")
+    print(f"  mean evaluations: {ev.mean():.0f}" if len(ev) else "  mean evaluations: nan")
+    print(f"  median evaluations: {np.median(ev):.0f}" if len(ev) else "  median evaluations: nan")
+    print(f"  mean generations: {np.mean([r[1] for r in solved]):.1f}" if solved else "  mean generations: nan")
+    print(f"  mean hidden nodes: {np.mean([r[2] for r in solved]):.2f}" if solved else "  mean hidden nodes: nan")
+    print(f"neat_xor: {kx_time:.2f} s (ratio {np_time / kx_time:.1f} vs neat-python)")
+
+
+BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor}
 
 
 def main(argv=None) -> None:
@@ -101,6 +263,11 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--generations", type=int, default=20, help="neat_generation: generations to run")
+    p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
+    p.add_argument("--width", type=int, default=50, help="neat_xor: populations evolved side by side")
+    p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
+    p.add_argument("--skip", type=int, default=5, help="neat_generation: first generations left out (compiles)")
     args = p.parse_args(argv)
     runtime.setup()
     BENCHES[args.name](args)

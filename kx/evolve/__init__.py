@@ -1,0 +1,1 @@
+"""Composing learners and the simulator: policies from genomes, population evaluation, the run loop."""
