@@ -324,3 +324,25 @@ def test_xor_is_solved_with_the_published_parameters():
     assert s["solved"] >= 19
     assert s["mean_evaluations"] < 15_000
     assert 1.0 <= s["mean_hidden"] <= 6.0
+
+
+def test_negative_and_non_finite_fitness_are_handled():
+    state = _init(CFG)(jax.random.key(0), WILD)
+    fit = -10.0 - jnp.arange(24.0)
+    fit = fit.at[3].set(jnp.nan).at[5].set(-jnp.inf).at[7].set(jnp.inf)
+    s1, m = _tell(CFG)(jax.random.key(1), state.population, fit, state, WILD)
+    assert int(m["offspring"].sum()) == 24
+    assert np.isfinite(float(m["mean_fitness"]))
+    assert gn.check_population(s1.population, CFG, WILD.weight_range) == []
+    # The best finite genome (index 0, fitness -10) is the champion; inf counts as the worst finite.
+    assert float(s1.best_fitness) == -10.0
+
+
+def test_neat_class_refuses_a_fitness_of_the_wrong_shape():
+    neat = alg.NEAT(CFG, WILD)
+    state = neat.init(jax.random.key(0))
+    pop, state = neat.ask(jax.random.key(1), state)
+    with pytest.raises(NEATError, match="expected \\(24,\\)"):
+        neat.tell(jax.random.key(2), pop, jnp.zeros((23,)), state)
+    state2, metrics = neat.tell(jax.random.key(2), pop, jnp.arange(24.0), state)
+    assert int(state2.generation) == 1 and float(metrics["best_fitness"]) == 23.0

@@ -286,6 +286,10 @@ class NEAT:
         return ask(key, state, params or self.default_params, self.config)
 
     def tell(self, key, population, fitness, state, params: NEATParams | None = None):
+        shape = getattr(fitness, "shape", None)
+        if shape != (self.config.population_size,):
+            raise NEATError(f"fitness has shape {shape}: expected ({self.config.population_size},), one value "
+                            "per genome of the population")
         return self._tell(key, population, fitness, state, params or self.default_params)
 
     def networks(self, population: Genome) -> Network:
