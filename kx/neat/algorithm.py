@@ -120,7 +120,7 @@ def init(key: jax.Array, params: NEATParams, config: NEATConfig) -> NEATState:
     return NEATState(
         population=pop, species=species, species_alive=alive, species_uid=uid,
         species_best=jnp.full((s,), -jnp.inf, F32), species_improved=jnp.zeros((s,), I32),
-        species_born=jnp.zeros((s,), I32), threshold=jnp.asarray(params.compat_threshold, F32),
+        threshold=jnp.asarray(params.compat_threshold, F32),
         next_node_id=jnp.asarray(config.n_fixed, I32), next_innov=jnp.asarray(config.n_initial_conns, I32),
         next_species_uid=jnp.sum(founded, dtype=I32), generation=jnp.zeros((), I32),
         best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32), counters=counters)
@@ -225,7 +225,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
         population=children, species=new_sp, species_alive=alive, species_uid=uid,
         species_best=jnp.where(founded, -jnp.inf, sp_best),
         species_improved=jnp.where(founded, gen + 1, sp_improved),
-        species_born=jnp.where(founded, gen + 1, state.species_born), threshold=threshold,
+        threshold=threshold,
         next_node_id=next_node, next_innov=next_innov,
         next_species_uid=state.next_species_uid + jnp.sum(founded, dtype=I32),
         generation=gen + 1, best_genome=best_genome, best_fitness=jnp.maximum(f[champ], state.best_fitness),
@@ -243,7 +243,8 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
         "champion_hidden": jnp.sum(population.node_kind[champ] == HIDDEN, dtype=I32),
         "champion_links": jnp.sum(population.conn_valid[champ] & population.conn_enabled[champ], dtype=I32),
         "stagnant_species": jnp.sum(stagnant & state.species_alive, dtype=I32),
-        "species_sizes": counts,
+        "species_sizes": counts,  # [S] by slot
+        "species_ids": jnp.where(state.species_alive & (counts > 0), state.species_uid, -1),  # [S] run-wide ids
         "offspring": n_off,
         "node_overflow": counters.node_overflow,
         "link_overflow": counters.link_overflow,

@@ -239,7 +239,6 @@ class NEATState:
     species_uid: jax.Array  # [S] int32 id of the species in the slot (unique over the run)
     species_best: jax.Array  # [S] float32 best fitness the species ever reached
     species_improved: jax.Array  # [S] int32 generation of its last improvement
-    species_born: jax.Array  # [S] int32 generation it was founded
     threshold: jax.Array  # float32 current compatibility threshold
     next_node_id: jax.Array  # int32
     next_innov: jax.Array  # int32
