@@ -59,7 +59,8 @@ def initial_genome(key: jax.Array, config: NEATConfig, params: NEATParams) -> Ge
                   conn_dst=dst.astype(I32), conn_weight=w, conn_enabled=used, conn_valid=used)
 
 
-def n_conns(g: Genome) -> jax.Array:  # connection genes of a genome
+def n_conns(g: Genome) -> jax.Array:
+    """Connection genes of a genome (enabled or not)."""
     return jnp.sum(g.conn_valid, dtype=I32)
 
 
