@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 from kx.neat import genome as gn
 from kx.neat.network import Network, build
-from kx.neat.types import HIDDEN, Counters, Genome, NEATConfig, NEATError, NEATParams, NEATState
+from kx.neat.types import HIDDEN, Genome, NEATConfig, NEATError, NEATParams, NEATState
 
 I32, F32 = jnp.int32, jnp.float32
 
@@ -114,16 +114,15 @@ def init(key: jax.Array, params: NEATParams, config: NEATConfig) -> NEATState:
     pop = jax.vmap(lambda k: gn.initial_genome(k, config, params))(jax.random.split(key, p))
     reps = _take(pop, jnp.zeros((s,), I32))
     threshold = jnp.asarray(params.compat_threshold, F32)
-    species, alive, founded, over = speciate(pop, reps, jnp.zeros((s,), bool), threshold, params)
+    species, alive, founded, _ = speciate(pop, reps, jnp.zeros((s,), bool), threshold, params)
     uid = jnp.where(founded, jnp.cumsum(founded) - 1, -1).astype(I32)
-    counters = Counters.zeros().replace(species_overflow=over)
     return NEATState(
         population=pop, species=species, species_alive=alive, species_uid=uid,
         species_best=jnp.full((s,), -jnp.inf, F32), species_improved=jnp.zeros((s,), I32),
         threshold=jnp.asarray(params.compat_threshold, F32),
         next_node_id=jnp.asarray(config.n_fixed, I32), next_innov=jnp.asarray(config.n_initial_conns, I32),
         next_species_uid=jnp.sum(founded, dtype=I32), generation=jnp.zeros((), I32),
-        best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32), counters=counters)
+        best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32))
 
 
 def ask(key: jax.Array, state: NEATState, params: NEATParams, config: NEATConfig) -> tuple[Genome, NEATState]:
@@ -228,8 +227,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
         threshold=threshold,
         next_node_id=next_node, next_innov=next_innov,
         next_species_uid=state.next_species_uid + jnp.sum(founded, dtype=I32),
-        generation=gen + 1, best_genome=best_genome, best_fitness=jnp.maximum(f[champ], state.best_fitness),
-        counters=counters.replace(species_overflow=sp_over))
+        generation=gen + 1, best_genome=best_genome, best_fitness=jnp.maximum(f[champ], state.best_fitness))
     metrics = {
         "generation": gen,
         "best_fitness": f[champ],
@@ -248,6 +246,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
         "offspring": n_off,
         "node_overflow": counters.node_overflow,
         "link_overflow": counters.link_overflow,
+        "link_exhausted": counters.link_exhausted,
         "species_overflow": sp_over,
         "new_nodes": counters.new_nodes,
         "new_links": counters.new_links,

@@ -264,14 +264,13 @@ def _structure_draw(key: jax.Array, params: NEATParams):
 
 def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEATConfig, link_pick=None):
     """Draw this genome's structural mutation: add node with ``add_node_prob``, else add link with
-    ``add_link_prob``, else none. Returns ``(kind, key1, key2, (node_full, link_exhausted))``: for
-    ADD_NODE, key1 is the column of the link to split; for ADD_LINK, key1 and key2 are the source and
-    target node ids. ``node_full``: an add node skipped because every hidden slot is taken;
-    ``link_exhausted``: an add link with no new feed-forward link left to add."""
-    k_u, k_split, k_link = jax.random.split(key, 3)
-    u = jax.random.uniform(k_u)
-    want_node = u < params.add_node_prob
-    want_link = ~want_node & (u < params.add_node_prob + params.add_link_prob)
+    ``add_link_prob``, else none. Returns ``(kind, key1, key2, (node_full, link_full, link_exhausted))``:
+    for ADD_NODE, key1 is the column of the link to split; for ADD_LINK, key1 and key2 are the source and
+    target node ids. ``node_full``/``link_full``: an add node/link skipped for lack of a hidden slot or of
+    gene room (``max_genes``); ``link_exhausted``: no new feed-forward link is left to add.
+    ``link_pick``, if given, is the ``(pair, has_pair)`` already drawn for this genome by
+    :func:`pick_links`."""
+    want_node, want_link, k_split, k_link = _structure_draw(key, params)
     split, has_split = _pick(k_split, g.conn_enabled)
     genes = n_conns(g)
     node_room = (n_hidden(g) < config.n_hidden) & (genes + 2 <= config.genes)
@@ -294,11 +293,12 @@ def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATPara
     Returns ``((pair, has_pair), overflow)``, ``[P]`` each."""
     p = frozen.shape[0]
     m = min(p, max(8, p // 8))
-    want = jax.vmap(lambda k: _structure_draw(k, params)[1])(keys) & ~frozen
+    _, want, _, k_link = jax.vmap(lambda k: _structure_draw(k, params))(keys)
+    want = want & ~frozen
     idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
     sel = jnp.minimum(idx, p - 1)
-    k_link = jax.vmap(lambda k: _structure_draw(k, params)[3])(keys[sel])
-    pair, has = jax.vmap(lambda k, g: _pick(k, link_candidates(g, config)))(k_link, jax.tree.map(lambda x: x[sel], pop))
+    pair, has = jax.vmap(lambda k, g: _pick(k, link_candidates(g, config)))(
+        k_link[sel], jax.tree.map(lambda x: x[sel], pop))
     pair_all = jnp.zeros((p,), I32).at[idx].set(pair, mode="drop")
     has_all = jnp.zeros((p,), bool).at[idx].set(has & (idx < p), mode="drop")
     chosen = jnp.zeros((p,), bool).at[idx].set(True, mode="drop")
@@ -425,7 +425,7 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
     nf = ~frozen
     counters = Counters(node_overflow=jnp.sum(node_full & nf, dtype=I32),
                         link_overflow=jnp.sum((link_full | link_skipped) & nf, dtype=I32) + dropped,
-                        link_exhausted=jnp.sum(l_exh & nf, dtype=I32), species_overflow=jnp.zeros((), I32),
+                        link_exhausted=jnp.sum(l_exh & nf, dtype=I32),
                         new_nodes=n_nodes, new_links=n_links)
     return pop, next_node_id, next_innov, counters
 

@@ -27,7 +27,6 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.numpy as jnp
 from flax import struct
 
 from kx.neat.activations import ACTIVATIONS
@@ -214,19 +213,13 @@ class Genome:
 
 @struct.dataclass
 class Counters:
-    """Per-generation event counts (int32)."""
+    """Structural mutations of one generation, counted (int32)."""
 
-    node_overflow: jax.Array  # add-node mutations skipped for lack of node or connection slots
-    link_overflow: jax.Array  # add-link mutations skipped for lack of a connection slot
+    node_overflow: jax.Array  # add-node mutations skipped for lack of a hidden slot, gene room or columns
+    link_overflow: jax.Array  # add-link mutations skipped for lack of gene room or a column
     link_exhausted: jax.Array  # add-link mutations with no new feed-forward link left to add
-    species_overflow: jax.Array  # genomes that would have founded a species with every slot taken
     new_nodes: jax.Array  # distinct add-node innovations this generation
     new_links: jax.Array  # distinct add-link innovations this generation
-
-    @classmethod
-    def zeros(cls) -> "Counters":
-        z = jnp.zeros((), jnp.int32)
-        return cls(z, z, z, z, z, z)
 
 
 @struct.dataclass
@@ -246,4 +239,3 @@ class NEATState:
     generation: jax.Array  # int32: number of completed tell() calls
     best_genome: Genome  # the fittest genome evaluated so far
     best_fitness: jax.Array  # float32
-    counters: Counters  # of the last generation
