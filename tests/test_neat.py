@@ -346,3 +346,19 @@ def test_neat_class_refuses_a_fitness_of_the_wrong_shape():
         neat.tell(jax.random.key(2), pop, jnp.zeros((23,)), state)
     state2, metrics = neat.tell(jax.random.key(2), pop, jnp.arange(24.0), state)
     assert int(state2.generation) == 1 and float(metrics["best_fitness"]) == 23.0
+
+
+def test_a_structural_mutation_without_a_free_column_is_counted_by_its_kind():
+    config = NEATConfig(n_inputs=3, n_outputs=2, population_size=2, max_nodes=8, max_conns=10, species_capacity=2)
+    params = NEATParams(add_node_prob=1.0, add_link_prob=0.0)
+    g = gn.initial_genome(jax.random.key(0), config, params)  # 8 genes in columns 0..7
+    # Genome 0 splits link 0 into columns 8 and 9: every column is now in use in the population.
+    g0 = gn.apply_structure(jax.random.key(1), g, gn.ADD_NODE, jnp.int32(0), jnp.int32(-1), jnp.int32(6),
+                            jnp.int32(8), jnp.int32(9), jnp.int32(8), jnp.int32(9), params, config)
+    pop = jax.tree.map(lambda a, b: jnp.stack([a, b]), g0, g)
+    frozen = jnp.array([True, False])
+    new, _, next_innov, counters = gn.mutate_population(jax.random.key(2), pop, frozen, jnp.int32(7),
+                                                        jnp.int32(10), params, config)
+    assert (int(counters.node_overflow), int(counters.link_overflow), int(next_innov)) == (1, 0, 10)
+    chex.assert_trees_all_equal(one(new, 1).conn_valid, g.conn_valid)
+    assert gn.check_population(new, config) == []

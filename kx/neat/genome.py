@@ -401,11 +401,12 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
     kind, key1, key2, (node_full, link_full, l_exh) = jax.vmap(
         lambda k, g, lp: propose_structure(k, g, params, config, lp))(keys[:, 0], pop, link_pick)
     l_exh = l_exh & ~link_skipped
-    kind = jnp.where(frozen, NONE, kind)
+    proposed = jnp.where(frozen, NONE, kind)
     split_innov = jnp.take_along_axis(pop.conn_innov, jnp.clip(key1, 0, config.max_conns - 1)[:, None], 1)[:, 0]
     used = jnp.any(pop.conn_valid, axis=0)
-    kind, node_id, ia, ib, ca, cb, next_node_id, next_innov, n_nodes, n_links, dropped = assign_innovations(
-        kind, key1, key2, split_innov, used, next_node_id, next_innov)
+    kind, node_id, ia, ib, ca, cb, next_node_id, next_innov, n_nodes, n_links, _ = assign_innovations(
+        proposed, key1, key2, split_innov, used, next_node_id, next_innov)
+    no_column = kind != proposed  # dropped: no free column left
 
     def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz):
         g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config)
@@ -423,8 +424,9 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
 
     pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen)
     nf = ~frozen
-    counters = Counters(node_overflow=jnp.sum(node_full & nf, dtype=I32),
-                        link_overflow=jnp.sum((link_full | link_skipped) & nf, dtype=I32) + dropped,
+    counters = Counters(node_overflow=jnp.sum((node_full | no_column & (proposed == ADD_NODE)) & nf, dtype=I32),
+                        link_overflow=jnp.sum((link_full | link_skipped | no_column & (proposed == ADD_LINK)) & nf,
+                                              dtype=I32),
                         link_exhausted=jnp.sum(l_exh & nf, dtype=I32),
                         new_nodes=n_nodes, new_links=n_links)
     return pop, next_node_id, next_innov, counters
