@@ -41,7 +41,10 @@ OPEN_FAR, OPEN_NEAR, OPEN_RANGE_W = 8, 3, 3  # stay within [NEAR, FAR] king move
 OPEN_EDGE_W = 4  # avoid the outermost ring of cells
 MARK_DISTANCE = 2  # a marker stands this many king moves from its keeper, toward the ball (calibrated)
 LANE_CONE = 2  # a taker blocks a lane within atan(1/2) = 26.6 degrees of it (calibrated)
-_INFEASIBLE = 1 << 20
+# Interception sort keys: a feasible plan's key is its sub-step (< 128 on fields up to MAX_FIELD), an
+# infeasible one's _INFEASIBLE // 2 + how late; both below _INFEASIBLE, packed above a cell's 18 bits.
+_INFEASIBLE = 1 << 10
+_PLAN_KEY_SHIFT = 18
 
 
 def check(config: KeepAwayConfig, params: KeepAwayParams) -> None:
@@ -166,8 +169,7 @@ def step(key: jax.Array, state: State, action: jax.Array, params: KeepAwayParams
 def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAwayParams,
                config: KeepAwayConfig) -> State:
     """:func:`step` with the kick noise given: a pass is rotated by ``atan(noise / 16)``."""
-    w, nk = config.field_size, config.n_keepers
-    spd, bspd = config.agent_speed, config.ball_speed
+    nk = config.n_keepers
     bnd = state.holder.ndim
     kid = _col(nk, bnd)
     alive = ~state.done
@@ -198,9 +200,9 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     # 3a. Interception plan: each keeper aims at the pass cell nearest to it, ahead of the ball.
     # One plan for keepers and takers alike (rows 0..K-1 keepers, then takers), from their cells at
     # the start of the iteration.
-    plan_code, plan_key = fenced(functools.partial(_plan_interception, config=config),
-                                 jnp.concatenate([kx, tx]), jnp.concatenate([ky, ty]), origin_x, origin_y,
-                                 dir_x, dir_y, substep)
+    plan = fenced(functools.partial(_plan_interception, config=config), jnp.concatenate([kx, tx]),
+                  jnp.concatenate([ky, ty]), origin_x, origin_y, dir_x, dir_y, substep)
+    plan_code, plan_key = plan & ((1 << _PLAN_KEY_SHIFT) - 1), plan >> _PLAN_KEY_SHIFT
     ik_code, ik_key = plan_code[:nk], plan_key[:nk]
     ik_key = jnp.where(kid == kicker, 2 * _INFEASIBLE, ik_key)
     interceptor = argmin0(ik_key)
@@ -210,16 +212,8 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     ref_y = jnp.where(flying, tgt_y, by)
 
     # 3b. Keepers move: the holder stays, the interceptor runs to its cell, the rest get open.
-    ox, oy = kx, ky
-    for _ in range(spd):
-        ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, jnp.where(flying, interceptor, holder),
-                           config)
-    ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd, w)
-    is_int = flying & (kid == interceptor)
-    is_holder = kid == holder
-    nkx = jnp.where(is_holder, kx, jnp.where(is_int, ix, ox))
-    nky = jnp.where(is_holder, ky, jnp.where(is_int, iy, oy))
-    nkx, nky = jnp.where(alive, nkx, kx), jnp.where(alive, nky, ky)
+    nkx, nky = geo.unpack(fenced(functools.partial(_keepers_move, config=config), kx, ky, tx, ty, ref_x,
+                                 ref_y, flying, interceptor, holder, tgt_x, tgt_y, alive))
 
     # 4. Takers move, seeing the keepers' new cells: the nearest chase, the rest mark lanes. They react
     # to a pass taker_reaction_delay (0 or 1) iterations after its kick (calibrated, see
@@ -228,31 +222,18 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     seen = flying & ~(launch & (params.taker_reaction_delay > 0))
     ball_ref_x = jnp.where(flying, bx, hold_x)  # bx: the ball's cell before this iteration's flight
     ball_ref_y = jnp.where(flying, by, hold_y)
-    ntx, nty = _takers_move(tx, ty, nkx, nky, jnp.where(flying, kicker, holder), seen,
-                            ball_ref_x, ball_ref_y, interceptor, tgt_x, tgt_y, plan_code[nk:],
-                            plan_key[nk:], config)
+    ntx, nty = geo.unpack(fenced(functools.partial(_takers_move, config=config), tx, ty, nkx, nky,
+                                 jnp.where(flying, kicker, holder), seen, ball_ref_x, ball_ref_y,
+                                 interceptor, tgt_x, tgt_y, plan_code[nk:], plan_key[nk:]))
     ntx, nty = jnp.where(alive, ntx, tx), jnp.where(alive, nty, ty)
 
-    # 5. Ball flight in unit sub-steps.
-    reason = state.reason
-    ball_x, ball_y = jnp.where(holder >= 0, hold_x, bx), jnp.where(holder >= 0, hold_y, by)
-    in_air = flying
-    l2 = dir_x * dir_x + dir_y * dir_y
-    inv = geo.inv_sqrt(l2)
-    for _ in range(bspd):
-        k = substep + 1
-        cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, k, l2, inv)
-        out = in_air & ~geo.inside(cx, cy, w)
-        cut = in_air & ~out & any0((ntx == cx) & (nty == cy))
-        on_k = (nkx == cx) & (nky == cy) & (kid != kicker)
-        catch = in_air & ~out & ~cut & any0(on_k)
-        catcher = argmin0(~on_k)
-        substep = jnp.where(in_air, k, substep)
-        ball_x, ball_y = jnp.where(in_air, cx, ball_x), jnp.where(in_air, cy, ball_y)
-        reason = jnp.where(out, Reason.OUT_OF_FIELD, jnp.where(cut, Reason.INTERCEPTED, reason))
-        holder = jnp.where(catch, catcher, holder)
-        passes = passes + catch.astype(jnp.int32)
-        in_air = in_air & ~out & ~cut & ~catch
+    # 5. Ball flight in unit sub-steps: one fenced computation whose results come packed in one int32
+    # (each output of a large fusion would recompute the whole flight).
+    flight = fenced(functools.partial(_flight, config=config), flying, holder, state.reason, bx, by,
+                    hold_x, hold_y, origin_x, origin_y, dir_x, dir_y, substep, kicker, nkx, nky, ntx, nty)
+    ball_x, ball_y, reason, caught, holder, advanced = _unpack_flight(flight)
+    substep = substep + advanced
+    passes = passes + caught
 
     # 6. Tackle.
     held_now = alive & (holder >= 0) & (reason == Reason.RUNNING)
@@ -277,6 +258,63 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
         dispersion_sum=state.dispersion_sum + jnp.where(alive, disp, 0),
         ball_centre_sum=state.ball_centre_sum + jnp.where(alive, centre, 0),
     )
+
+
+_FLIGHT_REASON, _FLIGHT_CAUGHT, _FLIGHT_HOLDER, _FLIGHT_ADVANCED = 18, 21, 22, 26
+
+
+def _flight(in_air, holder, reason, bx, by, hold_x, hold_y, origin_x, origin_y, dir_x, dir_y, substep,
+            kicker, nkx, nky, ntx, nty, config: KeepAwayConfig):
+    """The ball's ``ball_speed`` unit sub-steps this iteration, packed into one int32 per episode:
+    the ball's cell (18 bits, :func:`geo.pack`), the reason (3 bits), whether a keeper caught it (1),
+    the holder + 1 (4) and the sub-steps advanced (4)."""
+    w = config.field_size
+    kid = _col(config.n_keepers, holder.ndim)
+    ball_x, ball_y = jnp.where(holder >= 0, hold_x, bx), jnp.where(holder >= 0, hold_y, by)
+    caught = jnp.zeros_like(holder)
+    advanced = jnp.zeros_like(holder)
+    l2 = dir_x * dir_x + dir_y * dir_y
+    inv = geo.inv_sqrt(l2)
+    for _ in range(config.ball_speed):
+        k = substep + advanced + 1
+        cx, cy = geo.pass_cell(origin_x, origin_y, dir_x, dir_y, k, l2, inv)
+        out = in_air & ~geo.inside(cx, cy, w)
+        cut = in_air & ~out & any0((ntx == cx) & (nty == cy))
+        on_k = (nkx == cx) & (nky == cy) & (kid != kicker)
+        catch = in_air & ~out & ~cut & any0(on_k)
+        catcher = argmin0(~on_k)
+        advanced = advanced + in_air.astype(jnp.int32)
+        ball_x, ball_y = jnp.where(in_air, cx, ball_x), jnp.where(in_air, cy, ball_y)
+        reason = jnp.where(out, Reason.OUT_OF_FIELD, jnp.where(cut, Reason.INTERCEPTED, reason))
+        holder = jnp.where(catch, catcher, holder)
+        caught = caught | catch.astype(jnp.int32)
+        in_air = in_air & ~out & ~cut & ~catch
+    return (geo.pack(ball_x, ball_y) | (reason << _FLIGHT_REASON) | (caught << _FLIGHT_CAUGHT)
+            | ((holder + 1) << _FLIGHT_HOLDER) | (advanced << _FLIGHT_ADVANCED))
+
+
+def _unpack_flight(code):
+    ball_x, ball_y = geo.unpack(code & ((1 << _FLIGHT_REASON) - 1))
+    return (ball_x, ball_y, (code >> _FLIGHT_REASON) & 7, (code >> _FLIGHT_CAUGHT) & 1,
+            ((code >> _FLIGHT_HOLDER) & 15) - 1, (code >> _FLIGHT_ADVANCED) & 15)
+
+
+def _keepers_move(kx, ky, tx, ty, ref_x, ref_y, flying, interceptor, holder, tgt_x, tgt_y, alive,
+                  config: KeepAwayConfig):
+    """The keepers' new cells, packed (:func:`geo.pack`): the holder stays, the interceptor runs to
+    its cell, the rest get open; finished episodes stay put."""
+    spd = config.agent_speed
+    kid = _col(config.n_keepers, holder.ndim)
+    ox, oy = kx, ky
+    for _ in range(spd):
+        ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, jnp.where(flying, interceptor, holder),
+                           config)
+    ix, iy = geo.toward(kx, ky, tgt_x, tgt_y, spd, config.field_size)
+    is_int = flying & (kid == interceptor)
+    is_holder = kid == holder
+    nkx = jnp.where(is_holder, kx, jnp.where(is_int, ix, ox))
+    nky = jnp.where(is_holder, ky, jnp.where(is_int, iy, oy))
+    return geo.pack(jnp.where(alive, nkx, kx), jnp.where(alive, nky, ky))
 
 
 def max_substep(config: KeepAwayConfig) -> int:
@@ -304,7 +342,8 @@ def _plan_interception(px, py, origin_x, origin_y, dir_x, dir_y, substep, config
     moves = ((kt - k0 + config.ball_speed - 1) // config.ball_speed) * config.agent_speed
     ok = geo.inside(cx, cy, config.field_size) & (reach <= moves)
     key = jnp.where(ok, kt, _INFEASIBLE // 2 + jnp.maximum(reach - moves, 0))
-    return geo.pack(cx, cy), key
+    # one int32 (a second output would recompute the plan): the cell in the low bits, the key above
+    return geo.pack(cx, cy) | (key << _PLAN_KEY_SHIFT)
 
 
 def _get_open(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, skip, config: KeepAwayConfig):
@@ -386,6 +425,7 @@ def _get_open_move(kx, ky, self_id, snap_kx, snap_ky, tx, ty, ref_x, ref_y, conf
 def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, interceptor, tgt_x, tgt_y, cut_code,
                  cut_key, config: KeepAwayConfig):
     """Chasers (the ``n_chasers`` takers nearest the ball) go for the ball; markers cover lanes.
+    Returns the takers' new cells, packed (:func:`geo.pack`).
 
     ``cut_code, cut_key [T, *B]`` are the takers' interception plans for the pass in flight."""
     nk, nt, spd = config.n_keepers, config.n_takers, config.agent_speed
@@ -430,7 +470,7 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, interceptor, tg
         goal_y = jnp.where(chaser, chase_y, mark_y)
     else:
         goal_x, goal_y = chase_x, chase_y
-    return geo.toward(tx, ty, goal_x, goal_y, spd, config.field_size)
+    return geo.pack(*geo.toward(tx, ty, goal_x, goal_y, spd, config.field_size))
 
 
 def _dispersion_q(kx, ky, config: KeepAwayConfig):

@@ -69,33 +69,53 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
         h = jnp.maximum(state.holder, 0)
         kx, ky, tx, ty = state.keeper_x, state.keeper_y, state.taker_x, state.taker_y
         hx, hy = pick(kx, h), pick(ky, h)
-        pressed = jnp.min(geo.cheb(tx, ty, hx, hy), axis=0) <= threshold
-        dx, dy = (kx - hx).astype(jnp.float32), (ky - hy).astype(jnp.float32)  # [K, *B]
+        d_near = geo.cheb(tx, ty, hx, hy)
+        pressed = d_near[0] <= threshold
+        for j in range(1, config.n_takers):
+            pressed = pressed | (d_near[j] <= threshold)
+        # Only the K-1 teammates (rows in keeper order, skipping the holder): a pass to oneself is
+        # no pass.
+        rows = _col(config.n_keepers - 1, h.ndim)
+        idx = rows + (rows >= h).astype(jnp.int32)  # [K-1, *B] keeper index of each row
+        mx = jnp.stack([pick(kx, idx[r]) for r in range(config.n_keepers - 1)])
+        my = jnp.stack([pick(ky, idx[r]) for r in range(config.n_keepers - 1)])
+        dx, dy = (mx - hx).astype(jnp.float32), (my - hy).astype(jnp.float32)  # [K-1, *B]
         length = jnp.sqrt(dx * dx + dy * dy)
         inv = 1.0 / jnp.maximum(length, 1e-6)
         ux, uy = dx * inv, dy * inv
-        margin = jnp.full(kx.shape, jnp.inf, jnp.float32)
+        margin = jnp.full(mx.shape, jnp.inf, jnp.float32)
 
         def recip(den):  # 1/den where defined (the breakpoint exists), per teammate row
             ok = jnp.abs(den) > 1e-6
             return ok, 1.0 / jnp.where(ok, den, 1.0)
 
         slopes = [recip(ux), recip(uy), recip(ux - uy), recip(ux + uy)]
-        zero = jnp.zeros_like(length)
         for j in range(config.n_takers):
             a = (tx[j] - hx).astype(jnp.float32)
             b = (ty[j] - hy).astype(jnp.float32)
 
             def f(s):
-                return jnp.maximum(jnp.abs(a - s * ux), jnp.abs(b - s * uy)) - speed_ratio * s
+                p, q = jnp.abs(a - s * ux), jnp.abs(b - s * uy)
+                return jnp.where(p > q, p, q) - speed_ratio * s
 
-            m = jnp.minimum(f(zero), f(length))
+            def fmin(p, q):
+                return jnp.where(q < p, q, p)
+
+            aa, ab = jnp.abs(a), jnp.abs(b)
+            m = fmin(jnp.where(aa > ab, aa, ab), f(length))  # f(0) = cheb(T, H)
             for num, (ok, r) in zip((a, b, a - b, a + b), slopes):
-                m = jnp.minimum(m, f(jnp.where(ok, jnp.clip(num * r, 0.0, length), 0.0)))
-            margin = jnp.minimum(margin, m)
-        margin = jnp.where(_col(config.n_keepers, h.ndim) == h, -jnp.inf, margin)
-        target = jnp.argmax(margin, axis=0).astype(jnp.int32)
-        safe = jnp.max(margin, axis=0) >= min_margin
+                t = num * r
+                t = jnp.where(t > 0.0, t, 0.0)
+                t = jnp.where(t < length, t, length)
+                m = fmin(m, f(jnp.where(ok, t, 0.0)))
+            margin = fmin(margin, m)
+        # the first teammate (in keeper order) with the largest margin, unrolled: an argmax over a
+        # short leading axis does not vectorise on CPU
+        best, target = margin[0], idx[0]
+        for r in range(1, config.n_keepers - 1):
+            better = margin[r] > best
+            best, target = jnp.where(better, margin[r], best), jnp.where(better, idx[r], target)
+        safe = best >= min_margin
         return jnp.where(pressed & safe, target, h)
 
     return Policy("heuristic", apply)
