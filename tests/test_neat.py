@@ -112,6 +112,24 @@ def test_fast_network_equals_plain_python(seed):
             np.testing.assert_allclose(out, ref, rtol=2e-5, atol=2e-5)
 
 
+def test_network_rows_are_the_hidden_nodes_in_topological_order_then_the_outputs():
+    pop = wild_run(CPPN, 60)[0][-1].population
+    nets = alg.build_networks(pop, CPPN)
+    h, f = CPPN.n_hidden, CPPN.n_fixed
+    for i in range(CPPN.population_size):
+        g, net = one(pop, i), one(nets, i)
+        kind = np.asarray(g.node_kind)[f:]
+        acts = np.asarray(g.node_act)
+        hidden = np.flatnonzero(kind == HIDDEN)
+        # The first rows hold the hidden nodes' activations, as a permutation; then empty slots; then the
+        # outputs in order.
+        np.testing.assert_array_equal(np.sort(np.asarray(net.act)[: hidden.size]), np.sort(acts[f:][hidden]))
+        np.testing.assert_array_equal(np.asarray(net.act)[hidden.size: h], acts[f:][kind != HIDDEN])
+        np.testing.assert_array_equal(np.asarray(net.act)[h:], acts[CPPN.first_output: f])
+        # Topological: a hidden row only reads hidden rows before it.
+        assert not np.any(np.triu(np.asarray(net.w_hid)[:h]))
+
+
 # ------------------------------------------------------------------------------ hand-computed values
 
 

@@ -37,7 +37,8 @@ def _take(tree, idx):
 
 def _pairwise(pop: Genome, reps: Genome, params: NEATParams) -> jax.Array:
     """``[P, S]`` compatibility distances."""
-    return jax.vmap(lambda g: jax.vmap(lambda r: gn.distance(g, r, params))(reps))(pop)
+    sp, sr = jax.vmap(gn.distance_stats)(pop), jax.vmap(gn.distance_stats)(reps)
+    return jax.vmap(lambda g, s_g: jax.vmap(lambda r, s_r: gn.distance(g, r, params, s_g, s_r))(reps, sr))(pop, sp)
 
 
 def speciate(pop: Genome, reps: Genome, rep_alive: jax.Array, threshold: jax.Array, params: NEATParams):

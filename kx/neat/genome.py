@@ -83,22 +83,30 @@ def _align(a: Genome, b: Genome) -> jax.Array:
     return a.conn_valid & b.conn_valid & (a.conn_innov == b.conn_innov)
 
 
-def distance(a: Genome, b: Genome, params: NEATParams) -> jax.Array:
+def distance_stats(g: Genome) -> tuple[jax.Array, jax.Array]:
+    """What :func:`distance` needs of one genome alone: its gene count and largest innovation number
+    (computed once per genome when distances to many genomes are wanted)."""
+    return n_conns(g), jnp.max(jnp.where(g.conn_valid, g.conn_innov, -1))
+
+
+def distance(a: Genome, b: Genome, params: NEATParams, stats_a=None, stats_b=None) -> jax.Array:
     """Compatibility distance ``c1 E / N + c2 D / N + c3 W`` over connection genes (NEAT eq. 1).
 
     E counts excess genes (beyond the other genome's largest innovation number), D disjoint genes, W
     is the mean absolute weight difference of matching genes; N is the larger genome's gene count, or 1
-    while both have fewer than ``params.small_genome`` genes.
+    while both have fewer than ``params.small_genome`` genes. ``stats_a``/``stats_b`` are
+    :func:`distance_stats` of the genomes, if already computed.
     """
+    na, max_a = distance_stats(a) if stats_a is None else stats_a
+    nb, max_b = distance_stats(b) if stats_b is None else stats_b
     match = _align(a, b)
-    na, nb = n_conns(a), n_conns(b)
-    max_a = jnp.max(jnp.where(a.conn_valid, a.conn_innov, -1))
-    max_b = jnp.max(jnp.where(b.conn_valid, b.conn_innov, -1))
-    un_a = a.conn_valid & ~match
-    un_b = b.conn_valid & ~match
-    excess = jnp.sum(un_a & (a.conn_innov > max_b)) + jnp.sum(un_b & (b.conn_innov > max_a))
-    disjoint = jnp.sum(un_a) + jnp.sum(un_b) - excess
-    n_match = jnp.sum(match)
+    # A gene beyond the other genome's largest innovation matches nothing; a column holds at most one
+    # such gene (of a or of b). Matching and excess genes are counted in one integer reduction (each
+    # reduction of its own is a separate pass over the columns on CPU): matches in the low 16 bits.
+    excess_col = (a.conn_valid & (a.conn_innov > max_b)) | (b.conn_valid & (b.conn_innov > max_a))
+    counts = jnp.sum(match.astype(I32) | (excess_col.astype(I32) << 16))
+    n_match, excess = counts & 0xFFFF, counts >> 16
+    disjoint = na + nb - 2 * n_match - excess
     dw = jnp.sum(jnp.where(match, jnp.abs(a.conn_weight - b.conn_weight), 0.0))
     w = jnp.where(n_match > 0, dw / jnp.maximum(n_match, 1), 0.0)
     big_n = jnp.maximum(na, nb)
@@ -115,13 +123,15 @@ def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams)
     probability ``disable_inherit_prob`` (otherwise it keeps the flag of the parent it came from). A
     matching hidden node takes its activation from either parent at random.
     """
-    k_pick, k_dis, k_act = jax.random.split(key, 3)
+    k_bits, k_act = jax.random.split(key)
     match = _align(fitter, other)
-    take_other = match & jax.random.bernoulli(k_pick, 0.5, match.shape)
+    pick_other, dis = _two_flags(jax.random.bits(k_bits, match.shape, jnp.uint32), 0.5,
+                                 params.disable_inherit_prob)
+    take_other = match & pick_other
     w = jnp.where(take_other, other.conn_weight, fitter.conn_weight)
     en = jnp.where(take_other, other.conn_enabled, fitter.conn_enabled)
     either_off = match & ~(fitter.conn_enabled & other.conn_enabled)
-    force_off = either_off & jax.random.bernoulli(k_dis, params.disable_inherit_prob, match.shape)
+    force_off = either_off & dis
     en = en & ~force_off
     # Node activations (matter for CPPNs only): matching hidden nodes from either parent.
     node_match = (fitter.node_id[:, None] == other.node_id[None, :]) & fitter.node_valid[:, None] \
@@ -137,16 +147,32 @@ def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams)
 # Weight and flag mutations
 
 
+def _two_flags(bits: jax.Array, p_low, p_high) -> tuple[jax.Array, jax.Array]:
+    """Two independent coin flips per uint32 word, with probabilities ``p_low`` and ``p_high`` (16 bits
+    each: a probability is honoured to within 2^-16)."""
+    scale = jnp.float32(1 << 16)
+    low = (bits & 0xFFFF).astype(jnp.float32) < p_low * scale
+    high = (bits >> 16).astype(jnp.float32) < p_high * scale
+    return low, high
+
+
+def _symmetric_unit(bits: jax.Array) -> jax.Array:
+    """U(-1, 1) from uint32 words (23 bits of mantissa, as ``jax.random.uniform``)."""
+    one_two = jax.lax.bitcast_convert_type((bits >> 9) | jnp.uint32(0x3F800000), jnp.float32)  # [1, 2)
+    return 2.0 * one_two - 3.0
+
+
 def mutate_weights(key: jax.Array, g: Genome, params: NEATParams) -> Genome:
     """Each connection weight, with probability ``weight_mutate_rate``: perturbed by U(-p, p) with
     probability ``weight_perturb_prob``, else replaced by a fresh U(-init, init) value; then clipped."""
-    k_m, k_p, k_d, k_r = jax.random.split(key, 4)
-    shape = g.conn_weight.shape
-    mutate = g.conn_valid & jax.random.bernoulli(k_m, params.weight_mutate_rate, shape)
-    perturb = jax.random.bernoulli(k_p, params.weight_perturb_prob, shape)
+    # Two random words per gene (threefry dominated this step): one for both coin flips, one for the
+    # value, used as the perturbation or as the fresh weight (never both).
+    bits = jax.random.bits(key, (2,) + g.conn_weight.shape, jnp.uint32)
+    mutate, perturb = _two_flags(bits[0], params.weight_mutate_rate, params.weight_perturb_prob)
+    mutate = g.conn_valid & mutate
+    u = _symmetric_unit(bits[1])
     p, r = params.weight_perturb_power, params.weight_init_range
-    delta = jax.random.uniform(k_d, shape, jnp.float32, -1.0, 1.0) * p
-    fresh = jax.random.uniform(k_r, shape, jnp.float32, -1.0, 1.0) * r
+    delta, fresh = u * p, u * r
     w = jnp.where(mutate, jnp.where(perturb, g.conn_weight + delta, fresh), g.conn_weight)
     w = jnp.clip(w, -params.weight_range, params.weight_range)
     return g.replace(conn_weight=jnp.where(g.conn_valid, w, 0.0))

@@ -49,9 +49,12 @@ def build(g: Genome, config: NEATConfig) -> Network:
     if h:
         n_anc = jnp.sum(hidden_reach(lk, config, enabled_only=True), axis=0, dtype=I32)
         hid = jnp.arange(h, dtype=I32)
-        sort_key = jnp.where(g.node_kind[f:] == HIDDEN, n_anc * h + hid, jnp.iinfo(I32).max)
-        order = jnp.argsort(sort_key).astype(I32)  # row -> hidden slot offset
-        rank = jnp.argsort(order).astype(I32)  # hidden slot offset -> row
+        # distinct keys; empty slots last, in slot order (n_anc < h, so a hidden key is below h * h)
+        sort_key = jnp.where(g.node_kind[f:] == HIDDEN, n_anc * h + hid, h * h + hid)
+        # Ranks by counting (XLA's CPU sort is slow on short rows), the inverse permutation by matching.
+        rank = jnp.sum(sort_key[None, :] < sort_key[:, None], axis=1, dtype=I32)  # hidden slot offset -> row
+        order = jnp.sum(jnp.where(rank[None, :] == hid[:, None], hid[None, :], 0), axis=1,
+                        dtype=I32)  # row -> hidden slot offset
     else:
         order = rank = jnp.zeros((0,), I32)
     # Row of each node slot (outputs after the hidden rows), and column among the hidden nodes.

@@ -82,8 +82,8 @@ class NEATConfig:
              "population_size", "an integer in 2..1000000")
         need(isinstance(self.max_nodes, int) and self.max_nodes >= self.n_fixed, "max_nodes",
              f"an integer >= n_inputs + 1 + n_outputs = {self.n_fixed}")
-        need(isinstance(self.max_conns, int) and self.max_conns >= self.n_initial_conns, "max_conns",
-             f"an integer >= (n_inputs + 1) * n_outputs = {self.n_initial_conns} (the initial genome)")
+        need(isinstance(self.max_conns, int) and self.n_initial_conns <= self.max_conns <= 65535, "max_conns",
+             f"an integer in (n_inputs + 1) * n_outputs = {self.n_initial_conns} (the initial genome)..65535")
         need(isinstance(self.max_genes, int) and (self.max_genes == 0 or self.n_initial_conns <= self.max_genes
                                                    <= self.max_conns), "max_genes",
              f"0 or an integer in {self.n_initial_conns}..max_conns ({self.max_conns})")
