@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 run: $(STAMP)  ## the main job
-	$(PY) -m kx.demo
+	$(PY) -m kx.train
 
 test: $(STAMP)  ## the default test suite (what CI runs)
 	$(PY) -m pytest -q -n 2
@@ -24,6 +24,7 @@ bench: $(STAMP)  ## every benchmark (neat_xor also installs the optional neat-py
 	$(PY) -m kx.bench sim
 	$(PY) -m kx.bench neat_xor
 	$(PY) -m kx.bench neat_generation
+	$(PY) -m kx.bench generation
 
 calibrate: $(STAMP)
 	$(PY) scripts/calibrate.py

@@ -8,6 +8,8 @@ baseline is measured in the same run (these machines are shared and noisy).
   layout (150 random networks x 30 trials), against the plain-Python reference on the same rules.
 * ``neat_xor``: 100 XOR runs of kx's NEAT, vectorised, against neat-python 2.0.0 (optional ``bench``
   extra) with its standard XOR configuration: solved runs, evaluations, hidden nodes, wall time.
+* ``generation``: seconds per generation of ``python -m kx.train``'s default config, split into
+  evaluation and evolution, with the share of executed simulator steps that were live.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -253,7 +255,39 @@ def bench_neat_xor(args) -> None:
     print(f"neat_xor: {kx_time:.2f} s (ratio {np_time / kx_time:.1f} vs neat-python)")
 
 
-BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor}
+def bench_generation(args) -> None:
+    """Seconds per generation of ``python -m kx.train``'s default config (3v2, NEAT, population 150,
+    30 trials), split into evaluation (build the networks, play the trials) and evolution (``tell``), with
+    the share of executed simulator lane-steps that were live. The first ``--skip`` generations compile
+    and are left out of the medians."""
+    import numpy as np
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+
+    cfg = cfg_lib.load(None, [f"seed={args.seed}"])
+    trainer = run_lib.Trainer(cfg)
+    state, best = trainer.init(), -np.inf
+    print(f"default config: {cfg.task} {cfg.method}, population {cfg.population_size}, {cfg.trials} trials; "
+          f"{args.generations} generations, the first {args.skip} left out")
+    rows = []
+    for g in range(args.generations):
+        res = trainer.step(g, state, best)
+        state, row = res.state, res.row
+        best = row["best_so_far"]
+        rows.append(row)
+        print(run_lib.progress_line(row, args.generations, None), flush=True)
+    body = rows[args.skip:] or rows
+    med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
+    live = sum(r["live_steps"] for r in body) / sum(r["live_steps"] / max(r["live_fraction"], 1e-9) for r in body)
+    e, t, total = med("eval_seconds"), med("evolve_seconds"), med("generation_seconds")
+    print(f"median over generations {min(args.skip, len(rows) - 1)}..{len(rows) - 1}: {total:.3f} s per generation "
+          f"= evaluation {e:.3f} s + evolution {t:.4f} s; live lane-steps {live:.1%} of those executed")
+    print(f"generation: {total:.3f} s (ratio {t / e:.4f} vs evaluation)")
+
+
+BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
+           "generation": bench_generation}
 
 
 def main(argv=None) -> None:
@@ -263,11 +297,12 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--generations", type=int, default=20, help="neat_generation: generations to run")
+    p.add_argument("--generations", type=int, default=20, help="neat_generation, generation: generations to run")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
     p.add_argument("--width", type=int, default=25, help="neat_xor: populations evolved side by side")
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
-    p.add_argument("--skip", type=int, default=5, help="neat_generation: first generations left out (compiles)")
+    p.add_argument("--skip", type=int, default=5,
+                   help="neat_generation, generation: first generations left out (they compile)")
     args = p.parse_args(argv)
     runtime.setup()
     BENCHES[args.name](args)

@@ -1,0 +1,130 @@
+"""Re-evaluate a run's champion on held-out trials, in any task: ``python -m kx.evaluate RUN_DIR``.
+
+    python -m kx.evaluate runs/neat_3v2-s0-... --task 4v3 --trials 1000
+
+The champion is the genome with the best fitness the run has seen (on its generation's 30 trials, a
+maximum over noisy estimates and so biased upward); here it meets ``--trials`` start states that no
+generation of the run drew, next to the hand-coded baselines on the same states. A network of the
+fixed 13/3 layout plays any team size unchanged (zero-shot transfer); a full-layout network fits only
+the team size it was evolved for. Prints the figures and writes them to
+``RUN_DIR/eval/<task>-<trials>-seed<seed>.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+
+from kx import runtime
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m kx.evaluate", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir")
+    p.add_argument("--task", default=None, help="task to play (default: the run's own), e.g. 4v3")
+    p.add_argument("--trials", type=int, default=1000)
+    p.add_argument("--seed", type=int, default=None, help="seed of the held-out trials (default: the run's)")
+    p.add_argument("--step", type=int, default=None, help="checkpoint to read (default: the latest)")
+    p.add_argument("--no-baselines", action="store_true", help="skip the hand-coded baselines")
+    args = p.parse_args(argv)
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+
+    run_dir = pathlib.Path(args.run_dir)
+    try:
+        if not (run_dir / "config.json").is_file():
+            raise run_lib.RunError(f"{run_dir}: not a kx run directory (no config.json)")
+        if not 1 <= args.trials <= 1_000_000:
+            raise cfg_lib.ConfigError(f"--trials: allowed an integer in [1, 1000000], got {args.trials}")
+        cfg = cfg_lib.base_config()
+        cfg.update_from_flattened_dict(_flatten(json.loads((run_dir / "config.json").read_text())))
+        source = cfg_lib.validate(cfg)
+        target_cfg = cfg_lib.base_config()
+        target_cfg.update_from_flattened_dict(_flatten(cfg.to_dict()))
+        if args.task:
+            target_cfg.task = args.task
+        target = cfg_lib.validate(target_cfg)
+        if (target.neat.n_inputs, target.neat.n_outputs) != (source.neat.n_inputs, source.neat.n_outputs):
+            raise cfg_lib.ConfigError(
+                f"--task: the run's {source.layout}-layout networks have {source.neat.n_inputs} inputs and "
+                f"{source.neat.n_outputs} outputs; {target.sim.name} needs {target.neat.n_inputs} and "
+                f"{target.neat.n_outputs} (full-layout genomes need the transfer mapping of SPEC section 5)")
+    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+        print(f"kx.evaluate: error: {e}", file=sys.stderr)
+        return 2
+
+    runtime.setup()
+    import jax
+    import numpy as np
+
+    from kx.evolve.policy import neat_policy
+    from kx.neat.algorithm import NEAT
+    from kx.neat.network import build
+    from kx.sim import env
+    from kx.sim import evaluate as ev
+    from kx.sim.policies import BASELINES
+    from kx.sim.types import Reason
+
+    neat = NEAT(source.neat, source.neat_params)
+    try:
+        step, state, meta = run_lib.restore_checkpoint(
+            run_dir, jax.eval_shape(lambda: neat.init(jax.random.key(0))), args.step)
+    except run_lib.RunError as e:
+        print(f"kx.evaluate: error: {e}", file=sys.stderr)
+        return 2
+    seed = cfg.seed if args.seed is None else args.seed
+    key = jax.random.fold_in(jax.random.key(seed), run_lib.HELD_OUT)
+    k_start, k_noise = jax.random.split(jax.random.fold_in(key, 1))
+    starts = env.reset_batch(k_start, args.trials, target.sim_params, target.sim)
+    net = jax.tree.map(lambda a: a[None], build(state.best_genome, source.neat))
+    policy = neat_policy(target.sim, source.neat, source.layout)
+    stats = ev.evaluate(policy, net, starts, target.sim_params, target.sim, key=k_noise)
+
+    def summary(s) -> dict:
+        f = np.asarray(s.fitness).reshape(-1)
+        reason = np.asarray(s.reason).reshape(-1)
+        sd = float(f.std(ddof=1)) if f.size > 1 else 0.0
+        half = 1.96 * sd / math.sqrt(f.size)
+        return {"mean_fitness": float(f.mean()), "sd": sd, "ci95": [float(f.mean() - half), float(f.mean() + half)],
+                "median": float(np.median(f)),
+                "mean_passes": float(np.asarray(s.passes).mean()),
+                "reasons": {r.name.lower(): float(np.mean(reason == r)) for r in Reason if r != Reason.RUNNING}}
+
+    result = {"run_dir": str(run_dir), "checkpoint": step, "generations_done": meta["generation"],
+              "source_task": cfg.task, "task": target.sim.name, "trials": args.trials, "seed": seed,
+              "champion_training_fitness": float(state.best_fitness), "champion": summary(stats)}
+    if not args.no_baselines:
+        result["baselines"] = {}
+        for name, make in BASELINES.items():
+            pol = make(target.sim)
+            result["baselines"][name] = summary(ev.evaluate(pol, None, starts, target.sim_params, target.sim,
+                                                            key=k_noise))
+    c = result["champion"]
+    print(f"champion of {run_dir} (checkpoint {step}, trained on {cfg.task}; fitness "
+          f"{result['champion_training_fitness']:.4f} on its training trials)")
+    print(f"{target.sim.name}, {args.trials} held-out trials (seed {seed}): mean fitness {c['mean_fitness']:.4f} "
+          f"(sd {c['sd']:.4f}, 95% CI {c['ci95'][0]:.4f}..{c['ci95'][1]:.4f}), median {c['median']:.4f}, "
+          f"passes {c['mean_passes']:.1f}; ended by " + ", ".join(f"{k} {v:.0%}" for k, v in c["reasons"].items()))
+    for name, b in result.get("baselines", {}).items():
+        print(f"  {name:9s} on the same trials: mean fitness {b['mean_fitness']:.4f} (sd {b['sd']:.4f})")
+    out = run_dir / "eval" / f"{target.sim.name}-{args.trials}-seed{seed}.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    print(f"written: {out}")
+    return 0
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,91 @@
+"""Evolve keep-away teams: ``python -m kx.train``.
+
+With no arguments it runs the paper's source task (3v2, NEAT, population 150, 30 trials, 20
+generations; ``configs/neat_3v2.py``) into a new run directory under ``runs/``::
+
+    python -m kx.train
+    python -m kx.train --config configs/neat_4v3.py --config.population_size=50 --workdir runs/small
+    python -m kx.train --workdir runs/small --resume              # continue from the last checkpoint
+    python -m kx.train --workdir runs/small --resume --config.generations=40   # ... and run longer
+
+Overrides name any config field (``--config.seed=3``, ``--config.neat.add_node_prob=0.05``,
+``--config.sim.max_iterations=1000``). An unknown field or a value out of range is refused before
+anything runs; so is an existing run directory, unless ``--resume`` or ``--overwrite``. A resumed run
+must keep every field but ``generations``, ``checkpoint_every``, ``keep_checkpoints``, ``gif`` and
+``gif_frames``; it ends bit for bit where the uninterrupted run would have.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import pathlib
+import sys
+
+from kx import runtime
+
+
+def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    p = argparse.ArgumentParser(prog="python -m kx.train", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", default=None, help="config file (default: configs/neat_3v2.py; on --resume: "
+                   "the run's own config)")
+    p.add_argument("--workdir", default=None, help="run directory (default: runs/<config>-s<seed>-<time>)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --workdir from its last checkpoint")
+    p.add_argument("--overwrite", action="store_true", help="delete the run in --workdir and start again")
+    overrides = [a[len("--config."):] for a in argv if a.startswith("--config.")]
+    args = p.parse_args([a for a in argv if not a.startswith("--config.")])
+    return args, overrides
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    args, overrides = parse(argv)
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+
+    try:
+        if args.resume and not args.workdir:
+            raise run_lib.RunError("--resume: name the run with --workdir")
+        if args.resume and args.config is None:
+            # The run's own config, with this command's overrides (e.g. more generations).
+            saved = pathlib.Path(args.workdir) / "config.json"
+            if not saved.is_file():
+                raise run_lib.RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
+            cfg = cfg_lib.base_config()
+            cfg.update_from_flattened_dict(_flatten(json.loads(saved.read_text())))
+            cfg_lib.apply_overrides(cfg, overrides)
+            cfg.lock()
+        else:
+            cfg = cfg_lib.load(args.config, overrides)
+        cfg_lib.validate(cfg)
+        if args.workdir:
+            workdir = pathlib.Path(args.workdir)
+        else:
+            name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
+            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+            workdir = pathlib.Path("runs") / f"{name}-s{cfg.seed}-{stamp}"
+        run_lib.prepare_run_dir(workdir, args.resume, False) if not args.overwrite else None
+    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+        print(f"kx.train: error: {e}", file=sys.stderr)
+        return 2
+    runtime.setup()
+    try:
+        run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite,
+                      log=lambda s: print(s, flush=True))
+    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+        print(f"kx.train: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _flatten(d: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in d.items():
+        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+    return out
+
+
+if __name__ == "__main__":
+    sys.exit(main())
