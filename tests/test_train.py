@@ -135,6 +135,16 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert not (tmp_path / "x").exists()
 
 
+def test_a_relative_workdir_works(capsys, trained, tmp_path, monkeypatch):
+    # orbax needs absolute paths; the run resolves a relative --workdir itself
+    src, _ = trained
+    shutil.copytree(src, tmp_path / "rel")
+    monkeypatch.chdir(tmp_path)
+    assert train_cli.main(["--workdir", "rel", "--resume", "--config.generations=7", "--config.gif=false"]) == 0
+    assert int(_rows(tmp_path / "rel")[-1]["generation"]) == 6
+    assert (tmp_path / "rel" / "checkpoints" / "7").is_dir()
+
+
 def test_existing_run_directories_are_never_overwritten_unasked(capsys, trained, tmp_path):
     run_dir, _ = trained
     before = (run_dir / "metrics.csv").read_bytes()

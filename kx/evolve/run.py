@@ -85,7 +85,7 @@ def restore_checkpoint(run_dir: pathlib.Path, template: NEATState, step: int | N
     checkpoint that is missing, unreadable or of another shape is refused with :class:`RunError`."""
     import orbax.checkpoint as ocp
 
-    ckpt_dir = run_dir / "checkpoints"
+    ckpt_dir = pathlib.Path(run_dir).absolute() / "checkpoints"
     if not ckpt_dir.is_dir():
         raise RunError(f"{run_dir}: no checkpoints/ directory (not a kx run directory?)")
     manager = _manager(ckpt_dir, keep=1_000_000, create=False)
@@ -274,7 +274,7 @@ def prepare_run_dir(run_dir: pathlib.Path, resume: bool, overwrite: bool) -> Non
 def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume: bool = False,
           overwrite: bool = False, log: Callable[[str], None] = print) -> dict:
     """Runs (or resumes) the experiment of ``cfg`` in ``run_dir``; returns the final metrics row."""
-    run_dir = pathlib.Path(run_dir)
+    run_dir = pathlib.Path(run_dir).absolute()  # orbax wants absolute paths
     trainer = Trainer(cfg)  # validates the config first
     prepare_run_dir(run_dir, resume, overwrite)
     ckpt_dir = run_dir / "checkpoints"
