@@ -41,11 +41,9 @@ def main(argv: list[str] | None = None) -> int:
             raise run_lib.RunError(f"{run_dir}: not a kx run directory (no config.json)")
         if not 1 <= args.trials <= 1_000_000:
             raise cfg_lib.ConfigError(f"--trials: allowed an integer in [1, 1000000], got {args.trials}")
-        cfg = cfg_lib.base_config()
-        cfg.update_from_flattened_dict(_flatten(json.loads((run_dir / "config.json").read_text())))
+        cfg = cfg_lib.from_dict(json.loads((run_dir / "config.json").read_text()))
         source = cfg_lib.validate(cfg)
-        target_cfg = cfg_lib.base_config()
-        target_cfg.update_from_flattened_dict(_flatten(cfg.to_dict()))
+        target_cfg = cfg_lib.from_dict(cfg.to_dict())
         if args.task:
             target_cfg.task = args.task
         target = cfg_lib.validate(target_cfg)
@@ -117,13 +115,6 @@ def main(argv: list[str] | None = None) -> int:
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"written: {out}")
     return 0
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
-    return out
 
 
 if __name__ == "__main__":

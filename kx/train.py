@@ -53,8 +53,7 @@ def main(argv: list[str] | None = None) -> int:
             saved = pathlib.Path(args.workdir) / "config.json"
             if not saved.is_file():
                 raise run_lib.RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
-            cfg = cfg_lib.base_config()
-            cfg.update_from_flattened_dict(_flatten(json.loads(saved.read_text())))
+            cfg = cfg_lib.from_dict(json.loads(saved.read_text()))
             cfg_lib.apply_overrides(cfg, overrides)
             cfg.lock()
         else:
@@ -66,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
             name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
             stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
             workdir = pathlib.Path("runs") / f"{name}-s{cfg.seed}-{stamp}"
-        run_lib.prepare_run_dir(workdir, args.resume, False) if not args.overwrite else None
+        if not args.overwrite:  # refuse an existing run directory now, before JAX starts
+            run_lib.prepare_run_dir(workdir, args.resume, False)
     except (cfg_lib.ConfigError, run_lib.RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
@@ -78,13 +78,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
     return 0
-
-
-def _flatten(d: dict, prefix: str = "") -> dict:
-    out = {}
-    for k, v in d.items():
-        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
-    return out
 
 
 if __name__ == "__main__":

@@ -41,9 +41,7 @@ def trained(tmp_path_factory):
 
 
 def _cfg(run_dir):
-    cfg = cfg_lib.base_config()
-    cfg.update_from_flattened_dict(train_cli._flatten(json.loads((run_dir / "config.json").read_text())))
-    return cfg
+    return cfg_lib.from_dict(json.loads((run_dir / "config.json").read_text()))
 
 
 def _final_state(run_dir, step=GENERATIONS):

@@ -213,18 +213,27 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     return Experiment(sim=sim, sim_params=sim_params, neat=neat_cfg, neat_params=neat_params, layout=cfg.layout)
 
 
+def flatten(d: dict, prefix: str = "") -> dict:
+    """``{"a": {"b": 1}}`` -> ``{"a.b": 1}``."""
+    out = {}
+    for k, v in d.items():
+        out.update(flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
+    return out
+
+
+def from_dict(d: dict) -> ml_collections.ConfigDict:
+    """A config from its ``to_dict()`` form (e.g. a run's ``config.json``), on top of
+    :func:`base_config`; unlocked."""
+    cfg = base_config()
+    cfg.update_from_flattened_dict(flatten(d))
+    return cfg
+
+
 def identity_mismatch(saved: dict, cfg: ml_collections.ConfigDict) -> str | None:
     """The first field (other than :data:`RESUMABLE`) where a checkpoint's config differs from
     ``cfg``, described; ``None`` if they agree."""
     now = cfg.to_dict()
-
-    def flat(d, prefix=""):
-        out = {}
-        for k, v in d.items():
-            out.update(flat(v, f"{prefix}{k}.") if isinstance(v, dict) else {prefix + k: v})
-        return out
-
-    a, b = flat(saved), flat(now)
+    a, b = flatten(saved), flatten(now)
     for field in sorted(set(a) | set(b)):
         if field in RESUMABLE:
             continue

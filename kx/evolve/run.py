@@ -137,10 +137,6 @@ class Trainer:
     def init(self) -> NEATState:
         return self.neat.init(jax.random.fold_in(jax.random.key(self.cfg.seed), HELD_OUT - 1))
 
-    def starts(self, generation: int):
-        k = jax.random.split(trial_key(self.cfg.seed, generation))[0]
-        return env.reset_batch(k, self.cfg.trials, self.exp.sim_params, self.exp.sim)
-
     def step(self, generation: int, state: NEATState, best_so_far: float) -> GenerationResult:
         """Evaluate generation ``generation``'s population and breed the next one."""
         k_trials, k_tell = jax.random.split(trial_key(self.cfg.seed, generation))
