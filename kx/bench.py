@@ -280,9 +280,10 @@ def bench_generation(args) -> None:
     body = rows[args.skip:] or rows
     med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
     live = sum(r["live_steps"] for r in body) / sum(r["live_steps"] / max(r["live_fraction"], 1e-9) for r in body)
-    e, t, total = med("eval_seconds"), med("evolve_seconds"), med("generation_seconds")
+    e, t, h, total = med("eval_seconds"), med("evolve_seconds"), med("heldout_seconds"), med("generation_seconds")
     print(f"median over generations {min(args.skip, len(rows) - 1)}..{len(rows) - 1}: {total:.3f} s per generation "
-          f"= evaluation {e:.3f} s + evolution {t:.4f} s; live lane-steps {live:.1%} of those executed")
+          f"= evaluation {e:.3f} s + evolution {t:.4f} s + the champion on {cfg.heldout_trials} held-out states "
+          f"{h:.3f} s; live lane-steps {live:.1%} of those executed")
     print(f"generation: {total:.3f} s (ratio {t / e:.4f} vs evaluation)")
 
 

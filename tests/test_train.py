@@ -69,6 +69,15 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     for r in rows:
         assert 0.0 <= float(r["mean_fitness"]) <= float(r["best_fitness"]) <= 1.0
         assert 1 <= int(r["n_species"]) <= 10 and 0.0 < float(r["live_fraction"]) <= 1.0
+    # the champion replayed on held-out states, next to the hand-coded policies on the same states
+    base = json.loads((run_dir / "baselines.json").read_text())
+    assert base["trials"] == cfg["heldout_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}
+    assert base["mean_fitness"]["hold"] < base["mean_fitness"]["heuristic"]
+    heldout = [float(r["champion_heldout"]) for r in rows]
+    assert all(0.0 < h <= 1.0 for h in heldout)
+    trainer = run_lib.Trainer(_cfg(run_dir))
+    first = trainer.step(0, trainer.init(), -np.inf).row
+    assert first["champion_heldout"] == heldout[0] and first["best_fitness"] == best[0]
     with Image.open(run_dir / "progress.png") as im:
         assert im.format == "PNG" and im.size[0] > 300
     with Image.open(run_dir / "champion.gif") as im:
@@ -105,7 +114,7 @@ def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(tr
     assert meta_a == meta_b
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    drop = ("eval_seconds", "evolve_seconds", "generation_seconds")
+    drop = ("eval_seconds", "evolve_seconds", "heldout_seconds", "generation_seconds")
     strip = lambda rows: [{k: v for k, v in r.items() if k not in drop} for r in rows]  # noqa: E731
     assert strip(_rows(run_dir)) == strip(_rows(reference))
 

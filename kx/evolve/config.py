@@ -50,6 +50,7 @@ def base_config() -> ml_collections.ConfigDict:
     c.seed = 0
     c.checkpoint_every = 5  # generations between checkpoints (and one at the end)
     c.keep_checkpoints = 3  # the last few are kept, and the best (by best fitness) too
+    c.heldout_trials = 100  # each generation's champion replayed on this many held-out start states (0: off)
     c.gif = True  # render the champion's episode at the end
     c.gif_frames = 300
     c.sim = ml_collections.ConfigDict({
@@ -169,6 +170,8 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
           cfg.checkpoint_every)
     _need(_int(cfg.keep_checkpoints) and cfg.keep_checkpoints >= 1, "keep_checkpoints", "an integer >= 1",
           cfg.keep_checkpoints)
+    _need(_int(cfg.heldout_trials) and 0 <= cfg.heldout_trials <= 100_000, "heldout_trials",
+          "an integer in [0, 100000]", cfg.heldout_trials)
     _need(isinstance(cfg.gif, bool), "gif", "true or false", cfg.gif)
     _need(_int(cfg.gif_frames) and 1 <= cfg.gif_frames <= 5000, "gif_frames", "an integer in [1, 5000]",
           cfg.gif_frames)

@@ -6,11 +6,20 @@ genome's mean fitness, and lets NEAT's ``tell`` breed the next population. Every
 from ``(seed, g)``, so a run resumed from the checkpoint after generation ``g`` continues exactly as the
 uninterrupted run would have.
 
+A generation's best fitness is the largest of ``population_size`` noisy means over ``trials`` shared
+start states, so it flatters the champion (on keep-away one 4500-iteration trial of 30 is worth 0.033).
+Each generation therefore also replays its champion on ``heldout_trials`` start states that no
+generation trains on (the same ones every generation, drawn from the run's held-out stream), and
+``baselines.json`` gives the hand-coded policies' fitness on those same states: the ``champion_heldout``
+column is the unbiased learning curve. It is measured, never used for selection.
+
 The run directory::
 
     config.json        the resolved config
-    metrics.csv        one row per generation (fitness, species, genome sizes, behaviour, timings)
-    progress.png       best / mean / median fitness and species per generation
+    metrics.csv        one row per generation (fitness, species, genome sizes, behaviour, the champion's
+                       fitness on held-out start states, timings)
+    baselines.json     the hand-coded policies (hold, random, heuristic) on the same held-out states
+    progress.png       best / mean / median fitness, the held-out champion and species per generation
     checkpoints/<n>/   orbax checkpoints after n generations: the NEAT state and the run's metadata
     champion.gif       the champion's episode, at the end
 """
@@ -34,14 +43,16 @@ import numpy as np
 from kx.evolve import config as cfg_lib
 from kx.evolve.policy import neat_policy
 from kx.neat.algorithm import NEAT
+from kx.neat.network import build
 from kx.neat.types import NEATState
 from kx.sim import env
 from kx.sim import evaluate as ev
+from kx.sim.policies import BASELINES
 
 CSV_FIELDS = ("generation", "best_fitness", "mean_fitness", "median_fitness", "best_so_far", "n_species",
               "threshold", "mean_hidden", "mean_links", "champion_hidden", "champion_links", "mean_passes",
-              "mean_dispersion", "mean_ball_centre", "champion_passes", "live_fraction", "live_steps",
-              "eval_seconds", "evolve_seconds", "generation_seconds")
+              "mean_dispersion", "mean_ball_centre", "champion_passes", "champion_heldout", "live_fraction",
+              "live_steps", "eval_seconds", "evolve_seconds", "heldout_seconds", "generation_seconds")
 HELD_OUT = 0x7FFFFFFF  # fold_in index of held-out trials (training uses 0, 1, 2, ...)
 
 
@@ -51,6 +62,11 @@ class RunError(RuntimeError):
 
 def trial_key(seed: int, generation: int) -> jax.Array:
     return jax.random.fold_in(jax.random.key(seed), generation)
+
+
+def heldout_keys(seed: int) -> tuple[jax.Array, jax.Array]:
+    """Start-state and policy keys of the per-generation held-out replay (not kx.evaluate's states)."""
+    return tuple(jax.random.split(jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), HELD_OUT), 2)))
 
 
 # ------------------------------------------------------------------------------------------ checkpoints
@@ -133,6 +149,26 @@ class Trainer:
         self.exp = cfg_lib.validate(cfg)
         self.neat = NEAT(self.exp.neat, self.exp.neat_params)
         self.policy = neat_policy(self.exp.sim, self.exp.neat, self.exp.layout)
+        self.heldout_starts = None
+        if cfg.heldout_trials:
+            k_start, self.heldout_policy_key = heldout_keys(cfg.seed)
+            self.heldout_starts = env.reset_batch(k_start, cfg.heldout_trials, self.exp.sim_params, self.exp.sim)
+
+    def heldout(self, genome) -> float:
+        """Mean fitness of one genome on the held-out start states."""
+        net = jax.tree.map(lambda a: a[None], build(genome, self.exp.neat))
+        stats = ev.evaluate(self.policy, net, self.heldout_starts, self.exp.sim_params, self.exp.sim,
+                            key=self.heldout_policy_key)
+        return float(stats.fitness.mean())
+
+    def heldout_baselines(self) -> dict:
+        """The hand-coded policies' mean fitness on the held-out start states."""
+        out = {}
+        for name, make in BASELINES.items():
+            stats = ev.evaluate(make(self.exp.sim), None, self.heldout_starts, self.exp.sim_params, self.exp.sim,
+                                key=self.heldout_policy_key)
+            out[name] = float(stats.fitness.mean())
+        return out
 
     def init(self) -> NEATState:
         return self.neat.init(jax.random.fold_in(jax.random.key(self.cfg.seed), HELD_OUT - 1))
@@ -154,6 +190,9 @@ class Trainer:
         t2 = time.perf_counter()
         beh = np.asarray(stats.behaviour.mean(axis=2))  # [3, G]: passes, dispersion, ball centre
         champ = int(jnp.argmax(fitness))
+        heldout = (self.heldout(jax.tree.map(lambda a: a[champ], state.population))
+                   if self.heldout_starts is not None else float("nan"))
+        t3 = time.perf_counter()
         best = float(m["best_fitness"])
         row = {
             "generation": generation, "best_fitness": best, "mean_fitness": float(m["mean_fitness"]),
@@ -163,9 +202,10 @@ class Trainer:
             "champion_hidden": int(m["champion_hidden"]), "champion_links": int(m["champion_links"]),
             "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
             "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
+            "champion_heldout": heldout,
             "live_fraction": counters.live_steps / max(counters.executed_steps, 1),
             "live_steps": counters.live_steps, "eval_seconds": t1 - t0, "evolve_seconds": t2 - t1,
-            "generation_seconds": t2 - t0,
+            "heldout_seconds": t3 - t2, "generation_seconds": t3 - t0,
         }
         return GenerationResult(row=row, state=new_state)
 
@@ -177,7 +217,8 @@ def _fmt_seconds(s: float) -> str:
 def progress_line(row: dict, total: int, eta: float | None) -> str:
     eta_text = "" if eta is None else f"  ETA {_fmt_seconds(eta)}"
     return (f"gen {row['generation'] + 1:3d}/{total}  best {row['best_fitness']:.4f}  mean {row['mean_fitness']:.4f}"
-            f"  median {row['median_fitness']:.4f}  best-so-far {row['best_so_far']:.4f}  species {row['n_species']:2d}"
+            f"  median {row['median_fitness']:.4f}  best-so-far {row['best_so_far']:.4f}"
+            f"  champion held-out {row['champion_heldout']:.4f}  species {row['n_species']:2d}"
             f"  hidden {row['mean_hidden']:.2f}  links {row['mean_links']:.1f}  live {row['live_fraction']:.0%}"
             f"  {row['generation_seconds']:.2f} s/gen (eval {row['eval_seconds']:.2f}, evolve "
             f"{row['evolve_seconds']:.3f}){eta_text}")
@@ -206,8 +247,9 @@ def _append_row(path: pathlib.Path, row: dict) -> None:
         os.fsync(f.fileno())
 
 
-def plot_progress(rows: list[dict], path: pathlib.Path, title: str) -> None:
-    """Best, mean and median fitness and the best so far per generation, and the species count."""
+def plot_progress(rows: list[dict], path: pathlib.Path, title: str, baselines: dict | None = None) -> None:
+    """Best, mean and median fitness, the best so far and the champion on held-out states per generation,
+    the random and heuristic policies on those states, and the species count."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -220,7 +262,15 @@ def plot_progress(rows: list[dict], path: pathlib.Path, title: str) -> None:
     ax.plot(g, col("best_so_far"), label="best so far", color="C0", linestyle="--")
     ax.plot(g, col("mean_fitness"), label="mean", color="C1")
     ax.plot(g, col("median_fitness"), label="median", color="C2")
-    ax.set_ylabel("fitness (portion of max hold time)")
+    heldout = col("champion_heldout")
+    if not all(np.isnan(heldout)):
+        ax.plot(g, heldout, label="champion, held-out states", color="C4", marker=".")
+    for i, name in enumerate(("random", "heuristic")):
+        if baselines and name in baselines:
+            ax.axhline(baselines[name], color="0.5", linestyle=(0, (1, 1 + 2 * i)), linewidth=1,
+                       label=f"{name} policy, held-out states")
+    ax.set_yscale("log")  # random play holds about 0.003, the heuristic about 0.17, a perfect team 1
+    ax.set_ylabel("fitness (portion of max hold time, log scale)")
     ax.set_title(title)
     ax.legend(loc="upper left")
     ax.grid(alpha=0.3)
@@ -237,7 +287,6 @@ def plot_progress(rows: list[dict], path: pathlib.Path, title: str) -> None:
 
 def render_champion(trainer: Trainer, genome, path: pathlib.Path, frames: int) -> pathlib.Path:
     """The champion's episode on a held-out start state, as a GIF."""
-    from kx.neat.network import build
     from kx.sim.render import render_gif
 
     exp = trainer.exp
@@ -303,6 +352,14 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
     log(f"kx.train: {cfg.task} {cfg.method} ({exp.layout} layout: {exp.neat.n_inputs} inputs, "
         f"{exp.neat.n_outputs} outputs), population {cfg.population_size}, {cfg.trials} trials, "
         f"{cfg.generations} generations, seed {cfg.seed} -> {run_dir}")
+    baselines = None
+    if cfg.heldout_trials:
+        baselines = trainer.heldout_baselines()
+        tmp = run_dir / "baselines.json.tmp"
+        tmp.write_text(json.dumps({"trials": cfg.heldout_trials, "mean_fitness": baselines}, indent=2) + "\n")
+        os.replace(tmp, run_dir / "baselines.json")
+        log(f"held-out states ({cfg.heldout_trials}): "
+            + ", ".join(f"{k} policy {v:.4f}" for k, v in baselines.items()))
     t_run = time.perf_counter()
     done_here = 0
     row = rows[-1] if rows else None
@@ -322,11 +379,11 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
             meta = {"config": cfg.to_dict(), "generation": g + 1, "best_so_far": best_so_far,
                     "best_fitness": row["best_fitness"]}
             save_checkpoint(manager, g + 1, state, meta)
-            plot_progress(rows, run_dir / "progress.png", f"kx {cfg.task} {cfg.method}, seed {cfg.seed}")
+            plot_progress(rows, run_dir / "progress.png", f"kx {cfg.task} {cfg.method}, seed {cfg.seed}", baselines)
     if rows:
-        plot_progress(rows, run_dir / "progress.png", f"kx {cfg.task} {cfg.method}, seed {cfg.seed}")
+        plot_progress(rows, run_dir / "progress.png", f"kx {cfg.task} {cfg.method}, seed {cfg.seed}", baselines)
     if cfg.gif and rows:
         gif = render_champion(trainer, state.best_genome, run_dir / "champion.gif", cfg.gif_frames)
         log(f"champion (best fitness {float(state.best_fitness):.4f} on its generation's trials): {gif}")
-    log(f"done: {run_dir} (metrics.csv, progress.png, checkpoints/, champion.gif)")
+    log(f"done: {run_dir} (metrics.csv, baselines.json, progress.png, checkpoints/, champion.gif)")
     return row
