@@ -1,0 +1,83 @@
+"""Learning curves of a training config over several seeds, as a Markdown table.
+
+For each seed the config runs its generations in memory (no run directory) and records, per
+generation, the best and mean training fitness and the champion's fitness on the run's held-out start
+states (``heldout_trials`` of them; the ``champion_heldout`` column of ``metrics.csv``). The table gives
+the mean over seeds per generation, with the hand-coded policies on the same held-out states.
+
+    python scripts/learning_curve.py --seeds 0 1 2 3
+    python scripts/learning_curve.py --seeds 0 1 2 3 --set neat.weight_perturb_power=0.5 --out /tmp/c.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
+
+from kx import runtime  # noqa: E402
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--config", default=None, help="config file (default configs/neat_3v2.py)")
+    p.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE", help="a config override")
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3])
+    p.add_argument("--out", default=None, help="write the Markdown table here too")
+    args = p.parse_args(argv)
+    runtime.setup()
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+
+    keys = ("best_fitness", "mean_fitness", "champion_heldout")
+    curves, bases = [], []
+    t0 = time.perf_counter()
+    for seed in args.seeds:
+        cfg = cfg_lib.load(args.config, [*args.set, f"seed={seed}"])
+        if not cfg.heldout_trials:
+            raise SystemExit("heldout_trials is 0: the curve needs the held-out replay")
+        trainer = run_lib.Trainer(cfg)
+        bases.append(trainer.heldout_baselines())
+        state, best, rows = trainer.init(), -np.inf, []
+        for g in range(cfg.generations):
+            res = trainer.step(g, state, best)
+            state, best = res.state, res.row["best_so_far"]
+            rows.append([res.row[k] for k in keys])
+        curves.append(rows)
+        c = np.asarray(rows)
+        print(f"seed {seed}: champion held-out {c[0, 2]:.4f} at generation 1, {c[-5:, 2].mean():.4f} over the "
+              f"last 5; best training fitness {c[:, 0].max():.4f}", flush=True)
+    c = np.asarray(curves)  # [seeds, generations, 3]
+    base = {k: np.mean([b[k] for b in bases]) for k in bases[0]}
+    over = " ".join(args.set) or "none"
+    lines = [f"Config `{args.config or 'configs/neat_3v2.py'}`, overrides: {over}; seeds {args.seeds}; "
+             f"{cfg.heldout_trials} held-out start states per seed ({time.perf_counter() - t0:.0f} s).",
+             "",
+             "Hand-coded policies on the same held-out states (mean over seeds): "
+             + ", ".join(f"{k} {v:.4f}" for k, v in base.items()) + ".",
+             "",
+             "| generation | best (training trials) | mean (training trials) | champion, held-out states | "
+             "champion held-out per seed |",
+             "|---|---|---|---|---|"]
+    for g in range(c.shape[1]):
+        per_seed = " ".join(f"{v:.4f}" for v in c[:, g, 2])
+        lines.append(f"| {g + 1} | {c[:, g, 0].mean():.4f} | {c[:, g, 1].mean():.4f} | {c[:, g, 2].mean():.4f} | "
+                     f"{per_seed} |")
+    first, last5 = c[:, 0, 2].mean(), c[:, -5:, 2].mean()
+    lines += ["", f"Champion on held-out states: {first:.4f} at generation 1, {last5:.4f} over the last 5 "
+              f"generations ({last5 / base['random']:.1f}x the random policy, "
+              f"{last5 / base['heuristic']:.2f}x the heuristic)."]
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        pathlib.Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
