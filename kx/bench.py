@@ -300,7 +300,7 @@ def main(argv=None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20, help="neat_generation, generation: generations to run")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
-    p.add_argument("--width", type=int, default=25, help="neat_xor: populations evolved side by side")
+    p.add_argument("--width", type=int, default=2, help="neat_xor: populations evolved side by side")
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation: first generations left out (they compile)")

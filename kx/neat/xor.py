@@ -36,9 +36,13 @@ def run(keys: jax.Array, params: NEATParams, config: NEATConfig, max_generations
     """Independent XOR runs, one per key (``[R]`` keys), ``width`` populations evolving side by side.
 
     A run stops at its first solution or after ``max_generations`` generations, and its slot starts the
-    next run at once, so the batch stays full until the queue is empty. Each run depends only on its
-    own key. Returns per run: ``solved`` (bool), ``generations`` (generations evaluated up to and
-    including the one with the first solution; ``max_generations`` if none), ``evaluations``
+    next run at once, so the batch stays full until the queue is empty. Each run draws its random
+    numbers from its own key only; the floating-point rounding may still depend on ``width`` (XLA picks
+    other kernels for other batch shapes), so compare runs at one width. On a 2-core CPU a width of 2
+    is fastest (docs/benchmarks.md).
+
+    Returns per run: ``solved`` (bool), ``generations`` (generations evaluated up to and including the
+    one with the first solution; ``max_generations`` if none), ``evaluations``
     (``generations * population_size``), ``hidden`` and ``links`` (enabled) of the first solution, and
     ``n_species`` ``[R, max_generations]`` (species per evaluated generation, -1 after the run ended).
     """
