@@ -29,7 +29,7 @@ PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
 # Fields that may change when a run is resumed (how long it runs and what it writes, not what it
 # computes); every other field must equal the checkpoint's.
-RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames")
+RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "heldout_trials", "gif", "gif_frames")
 
 
 class ConfigError(ValueError):
