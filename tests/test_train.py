@@ -197,3 +197,23 @@ def test_evaluate_plays_the_champion_on_held_out_trials_of_another_task(capsys, 
     capsys.readouterr()
     assert "--trials: allowed" in _err(capsys, [str(run_dir), "--trials", "0"], evaluate_cli)
     assert "task:" in _err(capsys, [str(run_dir), "--task", "2v2"], evaluate_cli)
+
+
+def test_heldout_replay_uses_its_own_states_and_can_be_switched_off(tmp_path):
+    overrides = [s.removeprefix("--config.") for s in SMALL]
+    on = run_lib.Trainer(cfg_lib.load(None, overrides + ["heldout_trials=8"]))
+    # the held-out states are none of the training states of the first generations
+    k_trials, _ = jax.random.split(run_lib.trial_key(0, 0))
+    train_starts = run_lib.env.reset_batch(k_trials, 4, on.exp.sim_params, on.exp.sim)
+    cells = lambda s: np.concatenate([np.asarray(a) for a in (s.keeper_x, s.keeper_y, s.taker_x, s.taker_y)]).T  # noqa: E731
+    held, train = cells(on.heldout_starts), cells(train_starts)
+    assert held.shape[0] == 8 and len({h.tobytes() for h in held}) == 8
+    assert not {h.tobytes() for h in held} & {t.tobytes() for t in train}
+    # the replay of a genome is a pure function of the genome and the run's seed
+    genome = jax.tree.map(lambda a: a[0], on.init().population)
+    assert on.heldout(genome) == on.heldout(genome) == run_lib.Trainer(on.cfg).heldout(genome)
+    off = run_lib.Trainer(cfg_lib.load(None, overrides + ["heldout_trials=0"]))
+    row = off.step(0, off.init(), -np.inf).row
+    assert np.isnan(row["champion_heldout"]) and "champion held-out nan" in run_lib.progress_line(row, 1, None)
+    run_lib.plot_progress([row], tmp_path / "p.png", "off")
+    assert (tmp_path / "p.png").stat().st_size > 1000
