@@ -19,6 +19,7 @@ from kx import evaluate as evaluate_cli
 from kx import train as train_cli
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
+from kx.sim import env
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GENERATIONS = 6
@@ -202,9 +203,9 @@ def test_evaluate_plays_the_champion_on_held_out_trials_of_another_task(capsys, 
 def test_heldout_replay_uses_its_own_states_and_can_be_switched_off(tmp_path):
     overrides = [s.removeprefix("--config.") for s in SMALL]
     on = run_lib.Trainer(cfg_lib.load(None, overrides + ["heldout_trials=8"]))
-    # the held-out states are none of the training states of the first generations
+    # the held-out states are distinct, and none is a training state of the first generation
     k_trials, _ = jax.random.split(run_lib.trial_key(0, 0))
-    train_starts = run_lib.env.reset_batch(k_trials, 4, on.exp.sim_params, on.exp.sim)
+    train_starts = env.reset_batch(k_trials, 4, on.exp.sim_params, on.exp.sim)
     cells = lambda s: np.concatenate([np.asarray(a) for a in (s.keeper_x, s.keeper_y, s.taker_x, s.taker_y)]).T  # noqa: E731
     held, train = cells(on.heldout_starts), cells(train_starts)
     assert held.shape[0] == 8 and len({h.tobytes() for h in held}) == 8
