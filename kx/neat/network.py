@@ -60,9 +60,16 @@ def build(g: Genome, config: NEATConfig) -> Network:
     # Row of each node slot (outputs after the hidden rows), and column among the hidden nodes.
     row_of = jnp.concatenate([jnp.full((n_in1,), -1, I32), jnp.arange(h, h + o, dtype=I32), rank])
     hcol_of = jnp.concatenate([jnp.full((f,), -1, I32), rank])
-    w_rows = ((row_of[dst][:, None] == jnp.arange(h + o)) & live[:, None]) * lk.weight[:, None]  # [K, R]
-    w_in = w_rows.T @ (src[:, None] == jnp.arange(n_in1)).astype(jnp.float32)
-    w_hid = w_rows.T @ (hcol_of[src][:, None] == jnp.arange(h)).astype(jnp.float32)
+    # Scatters (a genome has at most one link per node pair, so nothing is summed): on XLA CPU they
+    # cost a tenth of the one-hot products they replaced.
+    r = h + o
+    row, hcol = row_of[dst], hcol_of[src]
+    to_in = live & (src < n_in1)
+    to_hid = live & (hcol >= 0)
+    w_in = jnp.zeros((r * n_in1,), jnp.float32).at[jnp.where(to_in, row * n_in1 + src, r * n_in1)].set(
+        lk.weight, mode="drop").reshape(r, n_in1)
+    w_hid = jnp.zeros((r * h,), jnp.float32).at[jnp.where(to_hid, row * h + hcol, r * h)].set(
+        lk.weight, mode="drop").reshape(r, h)
     act_rows = jnp.concatenate([g.node_act[f:][order], g.node_act[config.first_output: f]])
     return Network(w_in=w_in, w_hid=w_hid, act=act_rows.astype(I32))
 
