@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     neat = NEAT(source.neat, source.neat_params)
     try:
         step, state, meta = run_lib.restore_checkpoint(
-            run_dir, jax.eval_shape(lambda: neat.init(jax.random.key(0))), args.step)
+            run_dir, jax.eval_shape(lambda: neat.init(jax.random.key(0))), args.step, neat_config=source.neat)
     except run_lib.RunError as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2

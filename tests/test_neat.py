@@ -177,6 +177,34 @@ def test_distance_hand_computed():
     assert float(gn.distance(g, b, p.replace(small_genome=0))) == pytest.approx((2 + 2.0) / 5 + 0.5 / 3, rel=1e-6)
 
 
+def test_structural_mutations_keep_the_hidden_slots_in_topological_order():
+    """Inputs 0, 1, bias 2, output 3. Split 0 -> 3 (node 4) and 1 -> 3 (node 5): each goes after the
+    hidden nodes, its target being the output. A new link 5 -> 4 (source after target) moves 4 after
+    5. A split of 5 -> 4 puts its node just before 4."""
+    config = NEATConfig(n_inputs=2, n_outputs=1, population_size=2, max_nodes=8, max_conns=14, species_capacity=2)
+    params = NEATParams()
+    g = gn.initial_genome(jax.random.key(0), config, params)  # 0->3, 1->3, 2->3 in columns 0, 1, 2
+    i32 = lambda v: jnp.asarray(v, jnp.int32)
+    hidden = lambda g: list(np.asarray(g.node_id)[config.n_fixed:])
+    add = lambda k, kind, key1, key2, nid, col: gn.apply_structure(
+        jax.random.key(k), g, kind, i32(key1), i32(key2), i32(nid), i32(10 + col), i32(11 + col), i32(col),
+        i32(col + 1), params, config)
+    g = add(1, gn.ADD_NODE, 0, -1, 4, 3)  # 0 -> 4 -> 3 in columns 3, 4
+    g = add(2, gn.ADD_NODE, 1, -1, 5, 5)  # 1 -> 5 -> 3 in columns 5, 6
+    assert hidden(g) == [4, 5, -1, -1] and gn.check_genome(g, config) == []
+    g = add(3, gn.ADD_LINK, 5, 4, -1, 7)  # 5 -> 4 in column 7
+    assert hidden(g) == [5, 4, -1, -1] and gn.check_genome(g, config) == []
+    g = add(4, gn.ADD_NODE, 7, -1, 6, 8)  # 5 -> 6 -> 4 in columns 8, 9
+    assert hidden(g) == [5, 6, 4, -1] and gn.check_genome(g, config) == []
+    x = np.array([[0.3, -0.7], [1.5, 0.2]], np.float32)
+    out = np.asarray(nw.activate(nw.build(g, config), jnp.asarray(x), config))
+    np.testing.assert_allclose(out, [nw.reference_activate(g, xi, config) for xi in x], rtol=1e-6)
+    # The check itself: the same genome with nodes 5 and 4 swapped back is refused.
+    swap = jnp.array([0, 1, 2, 3, 6, 5, 4, 7])
+    bad = g.replace(node_id=g.node_id[swap], node_act=g.node_act[swap])
+    assert any("later hidden slot" in e for e in gn.check_genome(bad, config))
+
+
 def test_same_structural_mutation_in_one_generation_gets_one_number():
     i32 = lambda v: jnp.asarray(v, jnp.int32)
     kind = i32([gn.ADD_NODE, gn.ADD_LINK, gn.ADD_NODE, gn.ADD_LINK, gn.NONE, gn.ADD_LINK, gn.ADD_NODE])

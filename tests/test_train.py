@@ -186,6 +186,17 @@ def test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason(capsys, 
     (other / "config.json").write_text(json.dumps(cfg))
     err = _err(capsys, ["--workdir", str(other), "--resume", "--config.generations=8"])
     assert "written by another config: seed = 0 in the checkpoint, 7 now" in err
+    # a readable checkpoint of the right shapes whose genomes are broken (a link to a missing node)
+    broken = tmp_path / "broken"
+    shutil.copytree(src, broken)
+    step, state, meta = run_lib.restore_checkpoint(broken, jax.eval_shape(run_lib.Trainer(
+        cfg_lib.from_dict(json.loads((src / "config.json").read_text()))).init))
+    state = state.replace(population=state.population.replace(
+        conn_src=state.population.conn_src.at[3, 0].set(999)))
+    shutil.rmtree(broken / "checkpoints" / str(step))
+    run_lib.save_checkpoint(run_lib._manager(broken / "checkpoints", 3), step, state, meta)
+    err = _err(capsys, ["--workdir", str(broken), "--resume", "--config.generations=8"])
+    assert f"checkpoint {step}" in err and "invalid genomes" in err and "genome 3: link 999->" in err
 
 
 def test_evaluate_plays_the_champion_on_held_out_trials_of_another_task(capsys, trained):

@@ -96,9 +96,13 @@ def save_checkpoint(manager, step: int, state: NEATState, meta: dict) -> None:
     manager.wait_until_finished()
 
 
-def restore_checkpoint(run_dir: pathlib.Path, template: NEATState, step: int | None = None):
+def restore_checkpoint(run_dir: pathlib.Path, template: NEATState, step: int | None = None,
+                       neat_config=None):
     """``(step, state, meta)`` of checkpoint ``step`` (default: the latest) of a run directory; a
-    checkpoint that is missing, unreadable or of another shape is refused with :class:`RunError`."""
+    checkpoint that is missing, unreadable or of another shape is refused with :class:`RunError`, and,
+    given the run's ``neat_config`` (a :class:`~kx.neat.types.NEATConfig`), one whose genomes break an
+    invariant of :func:`kx.neat.genome.check_genome` (a damaged file, or one written by a kx whose
+    genome layout differed)."""
     import orbax.checkpoint as ocp
 
     ckpt_dir = pathlib.Path(run_dir).absolute() / "checkpoints"
@@ -129,6 +133,15 @@ def restore_checkpoint(run_dir: pathlib.Path, template: NEATState, step: int | N
         if a.shape != b.shape or a.dtype != b.dtype:
             raise RunError(f"checkpoint {step} in {ckpt_dir}: {jax.tree_util.keystr(path[0])} is "
                            f"{b.dtype}{list(b.shape)}, this config needs {a.dtype}{list(a.shape)}")
+    if neat_config is not None:
+        from kx.neat.genome import check_genome, check_population
+
+        errs = check_population(state.population, neat_config)
+        if np.isfinite(np.asarray(state.best_fitness)):
+            errs += [f"best genome: {e}" for e in check_genome(state.best_genome, neat_config)]
+        if errs:
+            raise RunError(f"checkpoint {step} in {ckpt_dir} holds invalid genomes ({len(errs)} problems; the "
+                           f"first: {errs[0]}): damaged, or written by a kx with another genome layout")
     return step, state, meta
 
 
@@ -331,7 +344,8 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
         if diff:
             raise RunError(f"--resume: this config differs from the run's: {diff}")
         if ckpt_dir.is_dir() and _manager(ckpt_dir, cfg.keep_checkpoints, create=False).all_steps():
-            step, state, meta = restore_checkpoint(run_dir, jax.eval_shape(trainer.init))
+            step, state, meta = restore_checkpoint(run_dir, jax.eval_shape(trainer.init),
+                                                   neat_config=trainer.exp.neat)
             diff = cfg_lib.identity_mismatch(meta["config"], cfg)
             if diff:
                 raise RunError(f"checkpoint {step} in {ckpt_dir} was written by another config: {diff}")

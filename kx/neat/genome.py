@@ -16,7 +16,11 @@ a node slot or a column when none is left is skipped and counted.
 Every operator keeps the invariants checked by :func:`check_genome`: innovation numbers are unique
 within a genome, hidden nodes are a prefix, every link leaves an input, the bias or a hidden node and
 enters a hidden or output node, no two links join the same pair, and the graph of all links (enabled
-or not, so that re-enabling never closes a cycle) is acyclic.
+or not, so that re-enabling never closes a cycle) is acyclic. More than acyclic: the hidden slots are
+in topological order (a link between hidden nodes goes from a lower slot to a higher one), so that
+:func:`kx.neat.network.build` needs no sort. Add node inserts its node just before the split link's
+target; add link, when its source sits after its target, moves the target and what it reaches past
+the source (the stable partition of an incremental topological sort, as in Pearce and Kelly 2006).
 """
 
 from __future__ import annotations
@@ -232,6 +236,21 @@ def closure(adj: jax.Array) -> jax.Array:
     return reach
 
 
+def mask_rank(mask: jax.Array) -> jax.Array:
+    """``[n]`` int32: how many entries of the 1-D ``mask`` before each position are true (the exclusive
+    running count). Counted with population counts of 32-bit words: XLA CPU's ``cumsum`` is a
+    reduce-window that costs four times as much on a population's columns."""
+    n = mask.shape[0]
+    pad = -n % 32
+    m = jnp.concatenate([mask, jnp.zeros((pad,), bool)]) if pad else mask
+    bit = jnp.arange(32, dtype=jnp.uint32)
+    words = jnp.sum(m.reshape(-1, 32).astype(jnp.uint32) << bit, axis=1, dtype=jnp.uint32)  # disjoint bits
+    per_word = jax.lax.population_count(words).astype(I32)
+    before = jnp.cumsum(per_word) - per_word
+    within = jax.lax.population_count(words[:, None] & ((jnp.uint32(1) << bit) - jnp.uint32(1))).astype(I32)
+    return (before[:, None] + within).reshape(-1)[:n]
+
+
 class Links(NamedTuple):
     """A genome's connection genes gathered into ``max_genes`` rows (valid ones first), with node slots
     in place of ids: the compact view the structural operators and the network builder work on."""
@@ -248,7 +267,7 @@ def links(g: Genome, config: NEATConfig) -> Links:
     # Valid column c goes to row (valid columns before c): a scatter (XLA's CPU sort costs ten times
     # as much, a binary search over the running count three times).
     c = config.max_conns
-    row = jnp.where(g.conn_valid, jnp.cumsum(g.conn_valid.astype(I32)) - 1, config.genes)
+    row = jnp.where(g.conn_valid, mask_rank(g.conn_valid), config.genes)
     col = jnp.full((config.genes,), c, I32).at[row].set(jnp.arange(c, dtype=I32), mode="drop")
     valid = col < c
     col = jnp.minimum(col, c - 1)
@@ -273,6 +292,11 @@ def hidden_reach(lk: Links, config: NEATConfig, enabled_only: bool = False) -> j
 def link_candidates(g: Genome, config: NEATConfig, lk: Links | None = None) -> jax.Array:
     """``[max_nodes, max_nodes]`` mask of (source slot, target slot) pairs a new link may join: from an
     input, the bias or a hidden node to a hidden or output node, not yet linked, closing no cycle."""
+    return _candidates_and_reach(g, config, lk)[0]
+
+
+def _candidates_and_reach(g: Genome, config: NEATConfig, lk: Links | None = None):
+    """:func:`link_candidates` and the :func:`hidden_reach` (all links) it was computed from."""
     lk = links(g, config) if lk is None else lk
     kind = g.node_kind
     src_ok = g.node_valid & ((kind == INPUT) | (kind == BIAS) | (kind == HIDDEN))
@@ -280,11 +304,35 @@ def link_candidates(g: Genome, config: NEATConfig, lk: Links | None = None) -> j
     n = config.max_nodes
     cand = src_ok[:, None] & dst_ok[None, :] & ~jnp.eye(n, dtype=bool)
     cand = cand & ~(_adjacency(lk.src, lk.dst, lk.valid, n) > 0)
+    reach = hidden_reach(lk, config)
     if config.n_hidden:
         f = config.n_fixed
-        back = hidden_reach(lk, config).T  # back[i, j]: hidden j reaches hidden i
-        cand = cand.at[f:, f:].set(cand[f:, f:] & ~back)
-    return cand
+        cand = cand.at[f:, f:].set(cand[f:, f:] & ~reach.T)  # reach.T[i, j]: hidden j reaches hidden i
+    return cand, reach
+
+
+def link_order(reach: jax.Array, src_slot: jax.Array, dst_slot: jax.Array, config: NEATConfig) -> jax.Array:
+    """``[max_nodes]`` slot permutation (new slot -> old slot) that keeps the hidden slots in
+    topological order once a link ``src_slot -> dst_slot`` (closing no cycle) is added.
+
+    Nothing moves unless both ends are hidden and the source sits after the target. Then, among the
+    slots from the target to the source, the target and the nodes it reaches move, in their order,
+    after the others (the source among them): no link inside that range goes from a moved node to one
+    that stays, since the target reaches every node a moved node reaches. ``reach`` is
+    :func:`hidden_reach` over all links, before the new one."""
+    f, h = config.n_fixed, config.n_hidden
+    off = jnp.arange(h, dtype=I32)
+    hs, hd = src_slot - f, dst_slot - f
+    move = (hs >= 0) & (hd >= 0) & (hs > hd)
+    region = (off >= hd) & (off <= hs)
+    moved = region & ((off == hd) | reach[jnp.clip(hd, 0, h - 1)])
+    stays = region & ~moved
+    before = lambda m: jnp.sum(m[None, :] & (off[None, :] < off[:, None]), axis=1, dtype=I32)  # h is small
+    new_off = jnp.where(stays, hd + before(stays),
+                        jnp.where(moved, hd + jnp.sum(stays, dtype=I32) + before(moved), off))
+    new_off = jnp.where(move, new_off, off)
+    perm = jnp.zeros((h,), I32).at[new_off].set(off)
+    return jnp.concatenate([jnp.arange(f, dtype=I32), f + perm])
 
 
 def _structure_draw(key: jax.Array, params: NEATParams):
@@ -308,7 +356,7 @@ def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEA
     genes = n_conns(g)
     node_room = (n_hidden(g) < config.n_hidden) & (genes + 2 <= config.genes)
     do_node = want_node & has_split & node_room
-    pair, has_pair = _pick(k_link, link_candidates(g, config)) if link_pick is None else link_pick
+    pair, has_pair = _pick(k_link, link_candidates(g, config)) if link_pick is None else link_pick[:2]
     link_room = genes + 1 <= config.genes
     do_link = want_link & has_pair & link_room
     n = config.max_nodes
@@ -323,19 +371,27 @@ def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATPara
     """The new link of every genome that draws add-link (``[P]`` keys as given to
     :func:`propose_structure`), computing candidate links only for those genomes: at most
     ``max(8, P // 8)`` of them (about 5% draw it); any beyond are skipped and returned as overflow.
-    Returns ``((pair, has_pair), overflow)``, ``[P]`` each."""
+    Returns ``((pair, has_pair, order), overflow)``: ``[P]`` each but ``order`` ``[P, max_nodes]``, the
+    :func:`link_order` that adding the picked link needs (the identity for the others)."""
     p = frozen.shape[0]
     m = min(p, max(8, p // 8))
     _, want, _, k_link = jax.vmap(lambda k: _structure_draw(k, params))(keys)
     want = want & ~frozen
     idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
     sel = jnp.minimum(idx, p - 1)
-    pair, has = jax.vmap(lambda k, g: _pick(k, link_candidates(g, config)))(
-        k_link[sel], jax.tree.map(lambda x: x[sel], pop))
+    n = config.max_nodes
+
+    def pick_one(k, g):
+        cand, reach = _candidates_and_reach(g, config)
+        pair, has = _pick(k, cand)
+        return pair, has, link_order(reach, pair // n, pair % n, config)
+
+    pair, has, order = jax.vmap(pick_one)(k_link[sel], jax.tree.map(lambda x: x[sel], pop))
     pair_all = jnp.zeros((p,), I32).at[idx].set(pair, mode="drop")
     has_all = jnp.zeros((p,), bool).at[idx].set(has & (idx < p), mode="drop")
+    order_all = jnp.broadcast_to(jnp.arange(n, dtype=I32), (p, n)).at[idx].set(order, mode="drop")
     chosen = jnp.zeros((p,), bool).at[idx].set(True, mode="drop")
-    return (pair_all, has_all), want & ~chosen
+    return (pair_all, has_all, order_all), want & ~chosen
 
 
 def assign_innovations(kind: jax.Array, key1: jax.Array, key2: jax.Array, split_innov: jax.Array,
@@ -384,29 +440,41 @@ def assign_innovations(kind: jax.Array, key1: jax.Array, key2: jax.Array, split_
 
 
 def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_a, innov_b, col_a, col_b,
-                    params: NEATParams, config: NEATConfig) -> Genome:
+                    params: NEATParams, config: NEATConfig, order: jax.Array | None = None) -> Genome:
     """Write a structural mutation with its assigned ids and columns.
 
     Add node splits the link in column ``key1``: the link is disabled, a hidden node ``node_id`` is
-    added, the link into it gets weight 1 (innovation ``innov_a``, column ``col_a``), the link out of it
-    the old weight (``innov_b``, ``col_b``). Add link joins node ids ``key1 -> key2`` with a
-    U(-init, init) weight (``innov_a``, ``col_a``).
+    inserted just before the link's target among the hidden slots (at the end if the target is an
+    output), the link into it gets weight 1 (innovation ``innov_a``, column ``col_a``), the link out of
+    it the old weight (``innov_b``, ``col_b``). Add link joins node ids ``key1 -> key2`` with a
+    U(-init, init) weight (``innov_a``, ``col_a``) and reorders the hidden slots by ``order`` (from
+    :func:`link_order`; computed here if not given).
     """
     k_w, k_act = jax.random.split(key)
     is_node, is_link = kind == ADD_NODE, kind == ADD_LINK
+    f, n = config.n_fixed, config.max_nodes
     split = jnp.clip(key1, 0, config.max_conns - 1)
-    h_slot = config.n_fixed + n_hidden(g)
+    old_src, old_dst, old_w = g.conn_src[split], g.conn_dst[split], g.conn_weight[split]
+    if order is None:
+        sl = slot_of(g, jnp.stack([key1, key2]))
+        order = link_order(hidden_reach(links(g, config), config), sl[0], sl[1], config)
+    # Slot permutation: add link's reordering, or add node's shift of the hidden slots from its slot on.
+    dst_slot = slot_of(g, old_dst)
+    ins = jnp.where(dst_slot >= f, dst_slot, f + n_hidden(g))
+    slots = jnp.arange(n, dtype=I32)
+    perm = jnp.where(is_link, order, jnp.where(is_node & (slots > ins), slots - 1, slots))
+    g = g.replace(node_id=g.node_id[perm], node_kind=g.node_kind[perm], node_act=g.node_act[perm],
+                  node_valid=g.node_valid[perm])
     if config.random_hidden_activation:
         act = jax.random.randint(k_act, (), 0, len(config.activation_options), I32)
     else:
         act = jnp.asarray(config.act_id(config.hidden_activation), I32)
-    put_node = is_node & (jnp.arange(config.max_nodes) == h_slot)
+    put_node = is_node & (slots == ins)
     g = g.replace(node_id=jnp.where(put_node, node_id, g.node_id),
                   node_kind=jnp.where(put_node, HIDDEN, g.node_kind),
                   node_act=jnp.where(put_node, act, g.node_act),
                   node_valid=g.node_valid | put_node)
     cols = jnp.arange(config.max_conns)
-    old_src, old_dst, old_w = g.conn_src[split], g.conn_dst[split], g.conn_weight[split]
     r = params.weight_init_range
     link_w = jax.random.uniform(k_w, (), jnp.float32, -r, r)
     put_a = (is_node | is_link) & (cols == col_a)
@@ -441,8 +509,8 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
         proposed, key1, key2, split_innov, used, next_node_id, next_innov)
     no_column = kind != proposed  # dropped: no free column left
 
-    def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz):
-        g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config)
+    def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz, order):
+        g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config, order)
         light = (kd == NONE) & ~frz
         ku = jax.random.uniform(k[2], (3,))
         gw = mutate_weights(k[3], g2, params)
@@ -455,7 +523,7 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
                               g2, ga)
         return g2
 
-    pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen)
+    pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen, link_pick[2])
     nf = ~frozen
     counters = Counters(node_overflow=jnp.sum((node_full | no_column & (proposed == ADD_NODE)) & nf, dtype=I32),
                         link_overflow=jnp.sum((link_full | link_skipped | no_column & (proposed == ADD_LINK)) & nf,
@@ -497,6 +565,7 @@ def check_genome(g, config: NEATConfig, weight_range: float | None = None) -> li
             or np.any(g.conn_enabled[~cv]) or np.any(g.conn_weight[~cv] != 0)):
         errs.append("empty connection columns not cleared")
     id_kind = {int(i): int(k) for i, k in zip(ids[nv], kind[nv])}
+    slot = {int(i): k for k, i in enumerate(ids.tolist()) if nv[k]}
     pairs = set()
     edges = []
     for s, d in zip(g.conn_src[cv].tolist(), g.conn_dst[cv].tolist()):
@@ -509,6 +578,8 @@ def check_genome(g, config: NEATConfig, weight_range: float | None = None) -> li
             errs.append(f"duplicate link {s}->{d}")
         pairs.add((s, d))
         edges.append((s, d))
+        if id_kind[s] == HIDDEN and id_kind[d] == HIDDEN and slot[s] > slot[d]:
+            errs.append(f"link {s}->{d} goes from a later hidden slot to an earlier one")
     w = g.conn_weight[cv]
     if not np.all(np.isfinite(w)) or (weight_range is not None and np.any(np.abs(w) > weight_range + 1e-6)):
         errs.append("weight out of range")

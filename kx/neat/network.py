@@ -1,11 +1,11 @@
 """Turning a genome into a network that evaluates fast, and evaluating it.
 
-:func:`build` runs once per genome per generation. It orders the hidden nodes topologically (by their
-longest path from the inputs over enabled links) and lays the enabled links out as two dense matrices
-in that order: ``w_in`` from the inputs and bias, ``w_hid`` from the hidden nodes, one row per hidden
-node then per output. :func:`forward` then computes the hidden nodes in order, each one a dot product
-with the values before it, and the outputs last: no gathers, no data-dependent control flow, the same
-arithmetic for every genome of a population, so that it vectorises over genomes and over inputs.
+:func:`build` runs once per genome per generation. The genome keeps its hidden nodes in topological
+order, and build lays the enabled links out as two dense matrices in that order: ``w_in`` from the
+inputs and bias, ``w_hid`` from the hidden nodes, one row per hidden node then per output.
+:func:`forward` then computes the hidden nodes in order, each one a dot product with the values
+before it, and the outputs last: no gathers, no data-dependent control flow, the same arithmetic for
+every genome of a population, so that it vectorises over genomes and over inputs.
 
 :func:`forward` is written *batch-last*: ``x`` is ``[n_inputs, *B]`` and each network field may carry
 the same trailing ``*B`` (one network per lane, as the keep-away evaluator lays out policies) or none.
@@ -21,8 +21,8 @@ import numpy as np
 from flax import struct
 
 from kx.neat import activations
-from kx.neat.genome import hidden_reach, links
-from kx.neat.types import HIDDEN, Genome, NEATConfig
+from kx.neat.genome import links
+from kx.neat.types import Genome, NEATConfig
 
 I32 = jnp.int32
 
@@ -39,27 +39,18 @@ class Network:
 def build(g: Genome, config: NEATConfig) -> Network:
     """The network of one genome (vmap over a population).
 
-    Hidden nodes are ordered by their number of hidden ancestors over enabled links: a node that
-    reaches another has strictly fewer ancestors than it, so the order is topological.
+    The genome's hidden slots are already in topological order (an invariant the operators keep, see
+    :mod:`kx.neat.genome`), so row ``i < n_hidden`` is hidden slot ``n_fixed + i`` (empty slots give
+    rows nothing reads) and building is two scatters of the enabled links' weights.
     """
     h, f, o = config.n_hidden, config.n_fixed, config.n_outputs
     n_in1 = config.n_inputs + 1
     lk = links(g, config)
     live, src, dst = lk.enabled, lk.src, lk.dst
-    if h:
-        n_anc = jnp.sum(hidden_reach(lk, config, enabled_only=True), axis=0, dtype=I32)
-        hid = jnp.arange(h, dtype=I32)
-        # distinct keys; empty slots last, in slot order (n_anc < h, so a hidden key is below h * h)
-        sort_key = jnp.where(g.node_kind[f:] == HIDDEN, n_anc * h + hid, h * h + hid)
-        # Ranks by counting (XLA's CPU sort is slow on short rows), the inverse permutation by matching.
-        rank = jnp.sum(sort_key[None, :] < sort_key[:, None], axis=1, dtype=I32)  # hidden slot offset -> row
-        order = jnp.sum(jnp.where(rank[None, :] == hid[:, None], hid[None, :], 0), axis=1,
-                        dtype=I32)  # row -> hidden slot offset
-    else:
-        order = rank = jnp.zeros((0,), I32)
     # Row of each node slot (outputs after the hidden rows), and column among the hidden nodes.
-    row_of = jnp.concatenate([jnp.full((n_in1,), -1, I32), jnp.arange(h, h + o, dtype=I32), rank])
-    hcol_of = jnp.concatenate([jnp.full((f,), -1, I32), rank])
+    row_of = jnp.concatenate([jnp.full((n_in1,), -1, I32), jnp.arange(h, h + o, dtype=I32),
+                              jnp.arange(h, dtype=I32)])
+    hcol_of = jnp.concatenate([jnp.full((f,), -1, I32), jnp.arange(h, dtype=I32)])
     # Scatters (a genome has at most one link per node pair, so nothing is summed): on XLA CPU they
     # cost a tenth of the one-hot products they replaced.
     r = h + o
@@ -70,7 +61,7 @@ def build(g: Genome, config: NEATConfig) -> Network:
         lk.weight, mode="drop").reshape(r, n_in1)
     w_hid = jnp.zeros((r * h,), jnp.float32).at[jnp.where(to_hid, row * h + hcol, r * h)].set(
         lk.weight, mode="drop").reshape(r, h)
-    act_rows = jnp.concatenate([g.node_act[f:][order], g.node_act[config.first_output: f]])
+    act_rows = jnp.concatenate([g.node_act[f:], g.node_act[config.first_output: f]])
     return Network(w_in=w_in, w_hid=w_hid, act=act_rows.astype(I32))
 
 
