@@ -184,7 +184,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
     p2 = jnp.where(u[:, 1] < params.interspecies_prob, pick(ks[3], other_sp), pick(ks[4], child_sp))
     fitter = jnp.where(f[p2] > f[p1], p2, p1)
     weaker = jnp.where(f[p2] > f[p1], p1, p2)
-    crossed = jax.vmap(lambda k, a, b: gn.crossover(k, a, b, params))(
+    crossed = jax.vmap(lambda k, a, b: gn.crossover(k, a, b, params, config.genes))(
         jax.random.split(k_x, p), _take(population, fitter), _take(population, weaker))
     mut_only = u[:, 0] < params.mutation_only_prob
     base_idx = jnp.where(elite, order[mem_start[child_sp]], p1)
@@ -232,7 +232,8 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
     metrics = {
         "generation": gen,
         "best_fitness": f[champ],
-        "mean_fitness": jnp.mean(f),
+        # float32 rounding can put the mean of equal values a hair above them: clip to where it lies
+        "mean_fitness": jnp.clip(jnp.mean(f), jnp.min(f), f[champ]),
         "median_fitness": jnp.median(f),
         "n_species": jnp.sum(state.species_alive & (counts > 0), dtype=I32),
         "n_species_next": n_species,

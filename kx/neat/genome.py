@@ -123,7 +123,8 @@ def distance(a: Genome, b: Genome, params: NEATParams, stats_a=None, stats_b=Non
     return (params.c1 * excess + params.c2 * disjoint) / norm + params.c3 * w
 
 
-def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams) -> Genome:
+def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams,
+              genes: int | None = None) -> Genome:
     """Offspring of two parents aligned by innovation number.
 
     Matching genes take weight and enabled flag from either parent at random; disjoint and excess
@@ -134,7 +135,7 @@ def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams)
     """
     k_bits, k_act = jax.random.split(key)
     match = _align(fitter, other)
-    pick_other, dis = _two_flags(jax.random.bits(k_bits, match.shape, jnp.uint32), 0.5,
+    pick_other, dis = _two_flags(_gene_bits(k_bits, fitter.conn_valid, 1, genes)[0], 0.5,
                                  params.disable_inherit_prob)
     take_other = match & pick_other
     w = jnp.where(take_other, other.conn_weight, fitter.conn_weight)
@@ -156,6 +157,17 @@ def crossover(key: jax.Array, fitter: Genome, other: Genome, params: NEATParams)
 # Weight and flag mutations
 
 
+def _gene_bits(key: jax.Array, valid: jax.Array, n: int, genes: int | None = None) -> jax.Array:
+    """``[n, max_conns]`` random uint32 words, independent across a genome's ``valid`` columns (other
+    columns get copies). With ``genes`` (the most genes a genome carries, ``NEATConfig.genes``) they are
+    drawn for the genes, not for every column: threefry's cost is in the words drawn."""
+    c = valid.shape[0]
+    if genes is None or genes >= c:
+        return jax.random.bits(key, (n, c), jnp.uint32)
+    bits = jax.random.bits(key, (n, genes), jnp.uint32)
+    return bits[:, jnp.minimum(mask_rank(valid), genes - 1)]
+
+
 def _two_flags(bits: jax.Array, p_low, p_high) -> tuple[jax.Array, jax.Array]:
     """Two independent coin flips per uint32 word, with probabilities ``p_low`` and ``p_high`` (16 bits
     each: a probability is honoured to within 2^-16)."""
@@ -171,12 +183,13 @@ def _symmetric_unit(bits: jax.Array) -> jax.Array:
     return 2.0 * one_two - 3.0
 
 
-def mutate_weights(key: jax.Array, g: Genome, params: NEATParams) -> Genome:
+def mutate_weights(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
     """Each connection weight, with probability ``weight_mutate_rate``: perturbed by U(-p, p) with
-    probability ``weight_perturb_prob``, else replaced by a fresh U(-init, init) value; then clipped."""
+    probability ``weight_perturb_prob``, else replaced by a fresh U(-init, init) value; then clipped.
+    ``genes``: see :func:`_gene_bits`."""
     # Two random words per gene (threefry dominated this step): one for both coin flips, one for the
     # value, used as the perturbation or as the fresh weight (never both).
-    bits = jax.random.bits(key, (2,) + g.conn_weight.shape, jnp.uint32)
+    bits = _gene_bits(key, g.conn_valid, 2, genes)
     mutate, perturb = _two_flags(bits[0], params.weight_mutate_rate, params.weight_perturb_prob)
     mutate = g.conn_valid & mutate
     u = _symmetric_unit(bits[1])
@@ -188,11 +201,13 @@ def mutate_weights(key: jax.Array, g: Genome, params: NEATParams) -> Genome:
 
 
 def _pick(key: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """A uniformly random index where ``mask`` (flattened) is true, and whether there is one."""
+    """A uniformly random index where ``mask`` (flattened) is true, and whether there is one: the r-th
+    true entry for one uniform r (one random word, not one per entry)."""
     flat = mask.reshape(-1)
-    u = jax.random.uniform(key, flat.shape)
-    i = jnp.argmax(jnp.where(flat, u + 1.0, 0.0)).astype(I32)
-    return i, jnp.any(flat)
+    n = jnp.sum(flat, dtype=I32)
+    r = jnp.minimum(jnp.floor(jax.random.uniform(key) * n).astype(I32), n - 1)
+    hit = flat & (mask_rank(flat) == r)
+    return jnp.sum(jnp.where(hit, jnp.arange(flat.shape[0], dtype=I32), 0), dtype=I32), n > 0
 
 
 def mutate_reenable(key: jax.Array, g: Genome) -> Genome:
@@ -513,7 +528,7 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
         g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config, order)
         light = (kd == NONE) & ~frz
         ku = jax.random.uniform(k[2], (3,))
-        gw = mutate_weights(k[3], g2, params)
+        gw = mutate_weights(k[3], g2, params, config.genes)
         g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[0] < params.weight_mutate_prob), y, x), g2, gw)
         gr = mutate_reenable(k[4], g2)
         g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[1] < params.reenable_prob), y, x), g2, gr)
