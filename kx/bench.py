@@ -220,18 +220,22 @@ def bench_neat_xor(args) -> None:
 
     config, params = presets.xor()
     keys = jax.random.split(jax.random.key(args.seed), args.runs)
+    devices = args.devices or jax.local_device_count()
+    if not 1 <= devices <= jax.local_device_count():
+        raise SystemExit(f"--devices: allowed 1 to {jax.local_device_count()} (this machine's devices), got {devices}")
+    go = lambda: xor.run(keys, params, config, max_generations=300, width=args.width, devices=devices)  # noqa: E731
     t0 = time.perf_counter()
-    jax.block_until_ready(xor.run(keys, params, config, max_generations=300, width=args.width))
+    jax.block_until_ready(go())
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = jax.block_until_ready(xor.run(keys, params, config, max_generations=300, width=args.width))
+    res = jax.block_until_ready(go())
     kx_time = time.perf_counter() - t0
     s = xor.summary(res)
     counts = np.asarray(res["n_species"])[:, 10:]
     live = counts >= 0
     within = float(np.mean(np.abs(counts[live] - int(params.target_species)) <= 2))
-    print(f"kx ({args.runs} runs, {args.width} populations side by side; first call {first:.1f} s with "
-          f"compilation, then {kx_time:.2f} s):")
+    print(f"kx ({args.runs} runs on {devices} {jax.devices()[0].platform} device(s), {args.width} population(s) "
+          f"side by side on each; first call {first:.1f} s with compilation, then {kx_time:.2f} s):")
     print(f"  solved: {s['solved']}/{s['runs']}")
     print(f"  mean evaluations: {s['mean_evaluations']:.0f}")
     print(f"  median evaluations: {s['median_evaluations']:.0f}")
@@ -300,7 +304,9 @@ def main(argv=None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20, help="neat_generation, generation: generations to run")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
-    p.add_argument("--width", type=int, default=2, help="neat_xor: populations evolved side by side")
+    p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
+    p.add_argument("--devices", type=int, default=0,
+                   help="neat_xor: devices the runs are dealt out to (0: all; kx.runtime makes one per CPU core)")
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation: first generations left out (they compile)")

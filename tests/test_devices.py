@@ -1,5 +1,5 @@
-"""Lanes split over two host devices give the same results as one device (a fresh process, since the
-device count is fixed when JAX starts)."""
+"""Lanes split over two host devices, and XOR runs dealt out to two devices, give the same results as
+one device (a fresh process, since the device count is fixed when JAX starts)."""
 
 import os
 import subprocess
@@ -24,13 +24,41 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def test_two_devices_equal_one(tmp_path):
+XOR_SCRIPT = textwrap.dedent("""
+    import jax, numpy as np
+    assert jax.local_device_count() == 2
+    from kx.neat import xor
+    from kx.neat.types import NEATConfig, NEATParams
+    config = NEATConfig(n_inputs=2, n_outputs=1, population_size=40, max_nodes=8, max_conns=32, max_genes=16,
+                        species_capacity=6)
+    params = NEATParams(target_species=4, add_node_prob=0.1, add_link_prob=0.2)
+    keys = jax.random.split(jax.random.key(11), 5)   # 5 runs: 3 on device 0, 2 (and a padding run) on 1
+    one = xor.run(keys, params, config, max_generations=80, width=2)
+    two = xor.run(keys, params, config, max_generations=80, width=2, devices=2)
+    for f in one:
+        np.testing.assert_array_equal(np.asarray(one[f]), np.asarray(two[f]), err_msg=f)
+    print("ok", np.asarray(one["generations"]).tolist())
+""")
+
+
+def _two_device_process(script):
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = root + os.pathsep + env.get("PYTHONPATH", "")
-    out = subprocess.run([sys.executable, "-c", SCRIPT], env=env, capture_output=True, text=True, timeout=600)
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]
     assert out.stdout.startswith("ok")
+    return out.stdout
+
+
+def test_two_devices_equal_one(tmp_path):
+    _two_device_process(SCRIPT)
+
+
+def test_xor_runs_split_over_two_devices_equal_one_device():
+    # runs of different lengths, so the devices' queues end at different times
+    gens = eval(_two_device_process(XOR_SCRIPT).split(" ", 1)[1])
+    assert len(set(gens)) > 1
 
 
 @pytest.mark.slow

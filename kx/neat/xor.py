@@ -30,24 +30,48 @@ def evaluate(population, config: NEATConfig) -> tuple[jax.Array, jax.Array]:
     return (4.0 - jnp.sum(err, axis=1)) ** 2, jnp.all(err < 0.5, axis=1)
 
 
-@functools.partial(jax.jit, static_argnames=("config", "max_generations", "width"))
+@functools.partial(jax.jit, static_argnames=("config", "max_generations", "width", "devices"))
 def run(keys: jax.Array, params: NEATParams, config: NEATConfig, max_generations: int = 300,
-        width: int | None = None) -> dict:
-    """Independent XOR runs, one per key (``[R]`` keys), ``width`` populations evolving side by side.
+        width: int | None = None, devices: int = 1) -> dict:
+    """Independent XOR runs, one per key (``[R]`` keys), ``width`` populations evolving side by side
+    on each of ``devices`` devices.
 
     A run stops at its first solution or after ``max_generations`` generations, and its slot starts the
-    next run at once, so the batch stays full until the queue is empty. Each run draws its random
-    numbers from its own key only; the floating-point rounding may still depend on ``width`` (XLA picks
-    other kernels for other batch shapes), so compare runs at one width. On a 2-core CPU a width of 2
-    is fastest (docs/benchmarks.md).
+    next run at once, so the batch stays full until the queue is empty. With ``devices > 1`` the runs
+    are dealt out in turn (run ``i`` to device ``i % devices``) and each device works through its own
+    queue with no communication: on a CPU each XLA host device (``kx.runtime.setup`` makes one per
+    core) runs its step on its own thread, where one device's small step leaves the second core mostly
+    idle. Each run draws its random numbers from its own key only; the floating-point rounding may
+    still depend on ``width`` (XLA picks other kernels for other batch shapes), so compare runs at one
+    width. On a 2-core CPU, 2 devices of width 1 are fastest (docs/benchmarks.md).
 
     Returns per run: ``solved`` (bool), ``generations`` (generations evaluated up to and including the
     one with the first solution; ``max_generations`` if none), ``evaluations``
     (``generations * population_size``), ``hidden`` and ``links`` (enabled) of the first solution, and
     ``n_species`` ``[R, max_generations]`` (species per evaluated generation, -1 after the run ended).
     """
-    r = keys.shape[0]
-    w = min(width or r, r)
+    if devices > 1:
+        r = keys.shape[0]
+        per = -(-r // devices)
+        idx = jnp.arange(per * devices).reshape(per, devices).T  # device d: runs d, d + devices, ...
+        mesh = jax.sharding.Mesh(np.array(jax.devices()[:devices]), ("runs",))
+        spec = jax.sharding.PartitionSpec("runs")
+        local = lambda k, n: jax.tree.map(lambda a: a[None], _run(k[0], n[0], params, config, max_generations,
+                                                                   width))
+        n_real = jnp.sum(idx < r, axis=1)  # a device's padding runs (past r) are not run
+        out = jax.shard_map(local, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_vma=False)(
+            keys[jnp.minimum(idx, r - 1)], n_real)
+        flat = jax.tree.map(lambda a: a.reshape((per * devices,) + a.shape[2:]), out)
+        order = jnp.argsort(idx.reshape(-1))  # back to the keys' order
+        return jax.tree.map(lambda a: a[order][:r], flat)
+    return _run(keys, keys.shape[0], params, config, max_generations, width)
+
+
+def _run(keys, n_runs, params, config, max_generations, width) -> dict:
+    """:func:`run` on one device: the first ``n_runs`` (may be traced) of the ``[R]`` keys."""
+    r_cap = keys.shape[0]
+    r = n_runs
+    w = min(width or r_cap, r_cap)
     split = jax.vmap(jax.random.split)(keys)  # [R, 2]: init key, loop key
     init_one = lambda run_id: algorithm.init(split[jnp.minimum(run_id, r - 1), 0], params, config)
     tell = jax.vmap(lambda k, pop, fit, st: algorithm.tell(k, pop, fit, st, params, config))
@@ -68,11 +92,11 @@ def run(keys: jax.Array, params: NEATParams, config: NEATConfig, max_generations
         loop_keys = split[jnp.minimum(run, r - 1), 1]
         new_states, metrics = tell(jax.vmap(jax.random.fold_in)(loop_keys, age), pop, fit, states)
         finished = active & (any_solved | (age + 1 >= max_generations))
-        idx = jnp.where(active, run, r)  # out-of-range rows are dropped
+        idx = jnp.where(active, run, r_cap)  # out-of-range rows are dropped
         out = dict(c["out"])
         out["n_species"] = out["n_species"].at[idx, jnp.minimum(age, max_generations - 1)].set(
             metrics["n_species"], mode="drop")
-        fin = jnp.where(finished, run, r)
+        fin = jnp.where(finished, run, r_cap)
         out["solved"] = out["solved"].at[fin].set(any_solved, mode="drop")
         out["generations"] = out["generations"].at[fin].set(age + 1, mode="drop")
         out["hidden"] = out["hidden"].at[fin].set(sol_h, mode="drop")
@@ -86,11 +110,11 @@ def run(keys: jax.Array, params: NEATParams, config: NEATConfig, max_generations
         return {"states": jax.tree.map(sel, refill, new_states), "run": new_run,
                 "age": jnp.where(finished, 0, age + 1), "next": c["next"] + jnp.sum(finished), "out": out}
 
-    z = jnp.zeros((r,), jnp.int32)
+    z = jnp.zeros((r_cap,), jnp.int32)
     carry = {"states": jax.vmap(init_one)(jnp.arange(w)), "run": jnp.arange(w), "age": jnp.zeros((w,), jnp.int32),
              "next": jnp.asarray(w, jnp.int32),
-             "out": {"solved": jnp.zeros((r,), bool), "generations": z, "hidden": z, "links": z,
-                     "n_species": jnp.full((r, max_generations), -1, jnp.int32)}}
+             "out": {"solved": jnp.zeros((r_cap,), bool), "generations": z, "hidden": z, "links": z,
+                     "n_species": jnp.full((r_cap, max_generations), -1, jnp.int32)}}
     out = jax.lax.while_loop(cond, body, carry)["out"]
     out["evaluations"] = out["generations"] * config.population_size
     return out
