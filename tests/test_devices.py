@@ -1,6 +1,7 @@
 """Lanes split over two host devices, and XOR runs dealt out to two devices, give the same results as
 one device (a fresh process, since the device count is fixed when JAX starts)."""
 
+import ast
 import os
 import subprocess
 import sys
@@ -57,7 +58,7 @@ def test_two_devices_equal_one(tmp_path):
 
 def test_xor_runs_split_over_two_devices_equal_one_device():
     # runs of different lengths, so the devices' queues end at different times
-    gens = eval(_two_device_process(XOR_SCRIPT).split(" ", 1)[1])
+    gens = ast.literal_eval(_two_device_process(XOR_SCRIPT).split(" ", 1)[1])
     assert len(set(gens)) > 1
 
 
