@@ -410,3 +410,11 @@ def test_a_structural_mutation_without_a_free_column_is_counted_by_its_kind():
     assert (int(counters.node_overflow), int(counters.link_overflow), int(next_innov)) == (1, 0, 10)
     chex.assert_trees_all_equal(one(new, 1).conn_valid, g.conn_valid)
     assert gn.check_population(new, config) == []
+
+
+def test_a_config_without_hidden_slots_evolves_links_only():
+    config = NEATConfig(n_inputs=2, n_outputs=2, population_size=10, max_nodes=5, max_conns=12, species_capacity=3)
+    params = NEATParams(target_species=2, add_link_prob=0.5, add_node_prob=0.5)
+    states, metrics = evolve(config, params, 4)
+    assert gn.check_population(states[-1].population, config) == []
+    assert sum(int(m["node_overflow"]) for m in metrics) > 0  # every add node is skipped and counted

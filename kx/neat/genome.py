@@ -336,6 +336,8 @@ def link_order(reach: jax.Array, src_slot: jax.Array, dst_slot: jax.Array, confi
     that stays, since the target reaches every node a moved node reaches. ``reach`` is
     :func:`hidden_reach` over all links, before the new one."""
     f, h = config.n_fixed, config.n_hidden
+    if h == 0:  # no hidden slots: nothing to order
+        return jnp.arange(f, dtype=I32)
     off = jnp.arange(h, dtype=I32)
     hs, hd = src_slot - f, dst_slot - f
     move = (hs >= 0) & (hd >= 0) & (hs > hd)
