@@ -24,7 +24,7 @@ def make_state(keepers, takers, holder, **kw) -> State:
         taker_x=i32([t[0] for t in takers]), taker_y=i32([t[1] for t in takers]),
         holder=i32(holder), ball_x=i32(hx), ball_y=i32(hy), origin_x=i32(hx), origin_y=i32(hy),
         dir_x=i32(1), dir_y=i32(0), substep=i32(0), kicker=i32(-1), t=i32(0),
-        done=jnp.asarray(False), reason=i32(0), passes=i32(0), dispersion_sum=i32(0),
+        done=jnp.asarray(False), reason=i32(0), passes=i32(0), contest=i32(0), dispersion_sum=i32(0),
         ball_centre_sum=i32(0))
     fields.update({k: (jnp.asarray(v) if k == "done" else i32(v)) for k, v in kw.items()})
     return State(**fields)

@@ -17,8 +17,8 @@ SCRIPT = textwrap.dedent("""
     cfg, params = KeepAwayConfig.from_task("4v3"), KeepAwayParams(max_iterations=300)
     starts = env.reset_batch(jax.random.key(0), 45, params, cfg)   # 45 lanes: padded to 46 on 2 devices
     pol = policies.heuristic(cfg)
-    one = ev.evaluate(pol, None, starts, params, cfg, devices=1)
-    two = ev.evaluate(pol, None, starts, params, cfg, devices=2)
+    one = ev.evaluate(pol, None, starts, params, cfg, devices=1, key=jax.random.key(1))
+    two = ev.evaluate(pol, None, starts, params, cfg, devices=2, key=jax.random.key(1))
     for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
         np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
     print("ok", float(one.fitness.mean()))

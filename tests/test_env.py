@@ -18,11 +18,48 @@ def step1(state, action, noise=0, params=PARAMS, config=CFG):
     return np_tree(_step(state, jnp.int32(action), jnp.int32(noise), params, config=config))
 
 
-def test_tackle_ends_episode():
+def test_instant_tackle_with_one_iteration():
     s = make_state([(5, 5), (10, 5), (5, 12)], [(6, 6), (15, 15)], holder=0)
-    out = step1(s, 0)  # hold; the adjacent taker steps onto the holder
+    out = step1(s, 0, params=KeepAwayParams(tackle_iterations=1))  # hold; the adjacent taker steps on
     assert (out["taker_x"][0], out["taker_y"][0]) == (5, 5)
-    assert out["reason"] == Reason.TACKLED and out["done"] and out["t"] == 1
+    assert out["reason"] == Reason.TACKLED and out["done"] and out["t"] == 1 and out["contest"] == 1
+
+
+def test_tackle_after_three_contested_iterations():
+    s = make_state([(5, 5), (10, 5), (5, 12)], [(6, 6), (15, 15)], holder=0)
+    for t in (1, 2):
+        s = _step(s, jnp.int32(0), jnp.int32(0), PARAMS, config=CFG)  # hold under the taker
+        o = np_tree(s)
+        assert o["contest"] == t and o["reason"] == Reason.RUNNING and o["t"] == t
+    out = step1(s, 0)
+    assert out["contest"] == 3 and out["reason"] == Reason.TACKLED and out["t"] == 3
+    # survived 2 iterations: the one in which the ball was lost does not count
+    assert float(env.episode_stats(_step(s, jnp.int32(0), jnp.int32(0), PARAMS, config=CFG), PARAMS,
+                                   CFG).fitness) == float(np.float32(2) / np.float32(4500))
+
+
+def test_contest_is_kept_in_flight_and_reset_by_an_uncontested_holder():
+    s = make_state([(5, 5), (10, 5), (5, 12)], [(6, 6), (15, 15)], holder=0)
+    for _ in range(2):
+        s = _step(s, jnp.int32(0), jnp.int32(0), PARAMS, config=CFG)
+    # pass east to keeper 1 from under the taker: the taker still goes for the kicker's cell and stays
+    s = _step(s, jnp.int32(1), jnp.int32(0), PARAMS, config=CFG)
+    o = np_tree(s)
+    assert o["holder"] == -1 and o["contest"] == 2 and o["reason"] == Reason.RUNNING
+    assert (o["ball_x"], o["ball_y"]) == (7, 5)
+    while o["holder"] < 0 and not o["done"]:
+        s = _step(s, jnp.int32(0), jnp.int32(0), PARAMS, config=CFG)
+        o = np_tree(s)
+        assert o["holder"] >= 0 or o["contest"] == 2
+    assert o["holder"] == 1 and o["passes"] == 1 and o["contest"] == 0  # caught with no taker on the cell
+
+
+def test_a_taker_stepping_off_resets_the_count():
+    # the taker on the holder's cell is the nearest chaser and stays; with a hand-made count of 2 a
+    # holder left alone resets it
+    s = make_state([(5, 5), (10, 5), (5, 12)], [(15, 15), (17, 17)], holder=0, contest=2)
+    out = step1(s, 0)
+    assert out["contest"] == 0 and out["reason"] == Reason.RUNNING
     stats = env.episode_stats(make_state([(5, 5), (10, 5), (5, 12)], [(6, 6), (15, 15)], 0, t=1, reason=2,
                                          done=True), PARAMS, CFG)
     assert float(stats.fitness) == 0.0  # the iteration in which the ball was lost does not count
@@ -173,6 +210,14 @@ def test_invariants_over_random_rollouts(task):
     assert np.all(np.diff(tr["done"].astype(int), axis=0) >= 0)  # done is absorbing
     assert np.all((tr["reason"] != Reason.RUNNING) == tr["done"])
     assert np.all(np.diff(tr["t"], axis=0) == (~tr["done"][:-1]).astype(int))  # t counts live iterations
+    # the possession count: below tackle_iterations while running, zero for an uncontested holder
+    on_holder = np.zeros_like(running)
+    for j in range(cfg.n_takers):
+        on_holder |= (tr["taker_x"][:, j] == hx) & (tr["taker_y"][:, j] == hy)
+    assert tr["contest"].min() >= 0 and np.all(~running | (tr["contest"] < 3))
+    assert np.all(~(running & held & ~on_holder) | (tr["contest"] == 0))
+    assert np.all(~(running & held & on_holder) | (tr["contest"] >= 1))
+    assert np.any(running & (tr["contest"] == 2))  # contested holders did survive to pass
 
 
 def test_jit_equals_no_jit():
@@ -229,3 +274,21 @@ def test_behaviour_statistics_hand_computed():
     np.testing.assert_allclose(beh[1], expect / 3 / 32 / (19 * np.sqrt(2)), rtol=1e-6)
     # the fixed-point distance rounds a hair above the bound; statistics are clipped to [0, 1]
     np.testing.assert_allclose(beh[2], min(1.0, round(32 * 9.5 * np.sqrt(2)) / 32 / (9.5 * np.sqrt(2))), rtol=1e-6)
+
+
+def test_kick_noise_is_uniform_and_a_function_of_trial_and_iteration():
+    words = env.noise_words(jax.random.key(3), jnp.arange(400))
+    t = jnp.arange(500, dtype=jnp.int32)
+    s_max = env.noise_limit(10.0)
+    assert int(s_max) == 2  # atan(2/16) = 7.1 degrees <= 10 < atan(3/16) = 10.6
+    draws = np.asarray(env.kick_noise(words[:, None], t[None, :], s_max))  # [400, 500]
+    assert draws.min() == -2 and draws.max() == 2
+    counts = np.bincount(draws.ravel() + 2, minlength=5)
+    # 200,000 draws, 40,000 expected per value: a binomial sd of 179, so 1000 is 5.6 sd
+    assert np.all(np.abs(counts - 40_000) < 1000), counts
+    # neighbouring iterations and trials are not correlated
+    assert abs(np.corrcoef(draws[:, 1:].ravel(), draws[:, :-1].ravel())[0, 1]) < 0.01
+    assert abs(np.corrcoef(draws[1:].ravel(), draws[:-1].ravel())[0, 1]) < 0.01
+    # the same (word, t) gives the same value in any batch shape
+    np.testing.assert_array_equal(np.asarray(env.kick_noise(words[7], t[123], s_max)), draws[7, 123])
+    assert np.all(np.asarray(env.kick_noise(words[:, None], t[None, :], jnp.int32(0))) == 0)

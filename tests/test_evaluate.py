@@ -26,13 +26,14 @@ def test_evaluate_equals_single_episode_rollouts():
     mlp = policies.mlp_init(jax.random.key(1), n_pol, CFG)
     mlp["w2"] = mlp["w2"].at[:, :, 0].add(0.8)  # lean toward holding so that some episodes last
     policy = policies.mlp_policy(CFG)
-    stats = ev.evaluate(policy, mlp, starts, PARAMS, CFG, first_chunk=2, chunk=16)
+    key = jax.random.key(9)
+    stats = ev.evaluate(policy, mlp, starts, PARAMS, CFG, first_chunk=2, chunk=16, key=key)
     assert stats.fitness.shape == (n_pol, n_trials) and stats.behaviour.shape == (3, n_pol, n_trials)
     for g in range(n_pol):
         for t in range(n_trials):
             start = jax.tree.map(lambda a: a[..., t], starts)
             one = jax.tree.map(lambda a: a[g], mlp)
-            states, _ = ev.rollout(policy, one, start, PARAMS, CFG, n_steps=600)
+            states, _ = ev.rollout(policy, one, start, PARAMS, CFG, n_steps=600, key=key, trial=t)
             final = jax.tree.map(lambda a: a[-1], states)
             alone = env.episode_stats(final, PARAMS, CFG)
             assert int(alone.iterations) == int(stats.iterations[g, t])
@@ -48,7 +49,7 @@ def test_evaluate_equals_single_episode_rollouts():
 def test_finished_episodes_are_not_paid_for():
     starts = env.reset_batch(jax.random.key(2), 60, PARAMS, CFG)
     c = ev.EvalCounters()
-    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c)
+    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c, key=jax.random.key(0))
     assert np.all(np.asarray(stats.reason) == Reason.TACKLED)  # holding never survives
     longest = int(stats.iterations.max())
     assert c.live_steps == int(stats.iterations.sum())
@@ -61,7 +62,9 @@ def test_stochastic_policy_needs_key_and_is_reproducible():
     starts = env.reset_batch(jax.random.key(3), 20, PARAMS, CFG)
     pol = policies.random_policy(CFG)
     with pytest.raises(ValueError, match="key"):
-        ev.evaluate(pol, None, starts, PARAMS, CFG)
+        ev.evaluate(pol, None, starts, PARAMS.replace(kick_noise_deg=0.0), CFG)
+    with pytest.raises(ValueError, match="key"):  # kick noise (on by default) needs one too
+        ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG)
     a = ev.evaluate(pol, None, starts, PARAMS, CFG, key=jax.random.key(5))
     b = ev.evaluate(pol, None, starts, PARAMS, CFG, key=jax.random.key(5))
     c = ev.evaluate(pol, None, starts, PARAMS, CFG, key=jax.random.key(6))

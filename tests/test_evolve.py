@@ -36,7 +36,7 @@ def test_neat_population_evaluates_through_the_simulator():
     state = alg.init(jax.random.key(2), nparams.replace(target_species=4), config)
     nets = alg.build_networks(state.population, config)
     starts = env.reset_batch(jax.random.key(3), 5, params, sim)
-    stats = ev.evaluate(neat_policy(sim, config), nets, starts, params, sim)
+    stats = ev.evaluate(neat_policy(sim, config), nets, starts, params, sim, key=jax.random.key(4))
     assert stats.fitness.shape == (6, 5)
     assert np.all((np.asarray(stats.fitness) > 0) & (np.asarray(stats.fitness) <= 1))
 

@@ -13,11 +13,11 @@ from kx.sim.types import KeepAwayConfig, KeepAwayParams
 _step = jax.jit(env.transition, static_argnames=("config",))
 
 
-def run_against_reference(task, n_episodes, seed, max_iterations=400, noise_deg=0.0, delay=1,
-                          pass_prob=0.3, cfg=None):
+def run_against_reference(task, n_episodes, seed, max_iterations=400, noise_deg=10.0, delay=1,
+                          pass_prob=0.3, cfg=None, tackle=3):
     cfg = KeepAwayConfig.from_task(task) if cfg is None else cfg
     params = KeepAwayParams(max_iterations=max_iterations, kick_noise_deg=noise_deg,
-                            taker_reaction_delay=delay)
+                            taker_reaction_delay=delay, tackle_iterations=tackle)
     state = env.reset_batch(jax.random.key(seed), n_episodes, params, cfg)
     arrays = env.as_numpy(state)
     refs = [ref.RefState.from_arrays({k: v[..., b] for k, v in arrays.items()}) for b in range(n_episodes)]
@@ -33,7 +33,7 @@ def run_against_reference(task, n_episodes, seed, max_iterations=400, noise_deg=
         for b in range(n_episodes):
             if refs[b].done:
                 continue
-            refs[b] = ref.step(refs[b], int(act[b]), int(noise[b]), cfg, max_iterations, delay)
+            refs[b] = ref.step(refs[b], int(act[b]), int(noise[b]), cfg, max_iterations, delay, tackle)
             checked += 1
             for k, v in refs[b].as_dict().items():
                 assert np.array_equal(np.asarray(v), arrays[k][..., b]), (
@@ -50,9 +50,13 @@ def test_jax_step_equals_reference(task):
     assert len(np.unique(arrays["reason"])) >= 2  # several endings were exercised
 
 
-def test_equals_reference_with_kick_noise_and_no_delay():
+def test_equals_reference_with_other_noise_delay_and_tackle_rules():
     run_against_reference("4v3", 30, seed=12, noise_deg=25.0)
-    run_against_reference("3v2", 30, seed=13, delay=0)
+    run_against_reference("3v2", 30, seed=13, delay=0, noise_deg=0.0)
+    # the instant tackle of the first versions, and a long possession count
+    run_against_reference("3v2", 30, seed=15, tackle=1, noise_deg=0.0)
+    checked, arrays = run_against_reference("5v3", 30, seed=16, tackle=8, pass_prob=0.1)
+    assert checked > 200 and arrays["contest"].max() >= 1
 
 
 @pytest.mark.slow

@@ -71,6 +71,33 @@ def noise_limit(kick_noise_deg) -> jax.Array:
     return jnp.floor(NOISE_DENOM * jnp.tan(jnp.deg2rad(kick_noise_deg)) + 1e-6).astype(jnp.int32)
 
 
+def noise_words(key: jax.Array, trial_ids: jax.Array) -> jax.Array:
+    """One uint32 word per episode, ``bits(fold_in(key, trial_id))``: the seed of that trial's kick
+    noise (:func:`kick_noise`). Drawn once per evaluation, not once per iteration."""
+    return jax.vmap(lambda i: jax.random.bits(jax.random.fold_in(key, i), (), jnp.uint32))(trial_ids)
+
+
+def _mix32(x: jax.Array) -> jax.Array:
+    """A 32-bit integer finaliser (Wellons' "lowbias32": two multiply-xorshift rounds, every output bit
+    depends on every input bit)."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def kick_noise(word: jax.Array, t: jax.Array, s_max: jax.Array) -> jax.Array:
+    """The kick-noise integer ``s`` in ``[-s_max, s_max]`` of iteration ``t`` of the trial seeded by
+    ``word`` (all ``[*B]``): a counter-based hash of ``(word, t)``, so it is the same whatever lanes are
+    batched together and costs a few integer operations per lane and iteration (threefry per lane and
+    iteration cost more than the rest of the step). ``s`` takes the top 16 bits of the hash times
+    ``2 s_max + 1``: uniform to within 2^-16 of each value's probability."""
+    h = _mix32(word ^ _mix32(t.astype(jnp.uint32) * jnp.uint32(0x9E3779B9) + jnp.uint32(0x632BE5AB)))
+    n = (2 * s_max + 1).astype(jnp.uint32)
+    return ((h >> 16) * n >> 16).astype(jnp.int32) - s_max
+
+
 def fenced(fn, *args):
     """``fn(*args)`` behind a fusion boundary: its results are computed once and stored.
 
@@ -144,7 +171,8 @@ def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> Sta
         holder=holder, ball_x=hx, ball_y=hy, origin_x=hx, origin_y=hy,
         dir_x=jnp.ones((), jnp.int32), dir_y=zero, substep=zero,
         kicker=-jnp.ones((), jnp.int32), t=zero,
-        done=jnp.zeros((), bool), reason=zero, passes=zero, dispersion_sum=zero, ball_centre_sum=zero,
+        done=jnp.zeros((), bool), reason=zero, passes=zero, contest=zero, dispersion_sum=zero,
+        ball_centre_sum=zero,
     )
 
 
@@ -235,10 +263,14 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     substep = substep + advanced
     passes = passes + caught
 
-    # 6. Tackle.
+    # 6. Tackle, in the RoboCup manner: a taker on the holder's cell contests the ball; the ball is lost
+    # after tackle_iterations consecutive contested iterations. An uncontested holder resets the count;
+    # while the ball flies it is kept (nobody is within reach of it).
     held_now = alive & (holder >= 0) & (reason == Reason.RUNNING)
     hx, hy = pick(nkx, jnp.maximum(holder, 0)), pick(nky, jnp.maximum(holder, 0))
-    tackled = held_now & any0((ntx == hx) & (nty == hy))
+    contested = held_now & any0((ntx == hx) & (nty == hy))
+    contest = jnp.where(held_now, jnp.where(contested, state.contest + 1, 0), state.contest)
+    tackled = contested & (contest >= params.tackle_iterations)
     reason = jnp.where(tackled, Reason.TACKLED, reason)
 
     # Bookkeeping: the iteration counts, statistics accumulate on the end-of-iteration positions.
@@ -254,7 +286,7 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
         origin_x=origin_x, origin_y=origin_y, dir_x=dir_x, dir_y=dir_y,
         substep=jnp.where(alive, substep, state.substep), kicker=kicker,
         t=t, done=state.done | (reason != Reason.RUNNING), reason=reason,
-        passes=jnp.where(alive, passes, state.passes),
+        passes=jnp.where(alive, passes, state.passes), contest=contest,
         dispersion_sum=state.dispersion_sum + jnp.where(alive, disp, 0),
         ball_centre_sum=state.ball_centre_sum + jnp.where(alive, centre, 0),
     )

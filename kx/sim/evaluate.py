@@ -7,9 +7,10 @@ width compiles once per (policy, task) and is reused across generations. A batch
 early therefore costs about what its live steps cost, and the results equal those of each episode run
 alone (lanes never interact; the tests check this).
 
-Randomness (kick noise, stochastic policies) is derived per lane and iteration with ``fold_in``, so it
-does not depend on how lanes are batched: the kick noise of trial ``i`` at iteration ``t`` is the same
-for every policy (common random numbers).
+Randomness does not depend on how lanes are batched. The kick noise of trial ``i`` at iteration ``t``
+is :func:`kx.sim.env.kick_noise` of the trial's word ``bits(fold_in(noise_key, i))`` and ``t``, the same
+for every policy (common random numbers); stochastic policies get ``fold_in(fold_in(policy_key, lane),
+t)``.
 """
 
 from __future__ import annotations
@@ -63,24 +64,20 @@ def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
     return jax.vmap(lambda i, tt: jax.random.fold_in(jax.random.fold_in(key, i), tt))(ids, t)
 
 
-def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id: jax.Array,
+def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_id: jax.Array,
                    key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array, *,
                    policy: Policy, config: KeepAwayConfig):
     """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early once at most ``stop_at``
     lanes are live (the next narrower batch width would hold them; 0: when all have finished).
+    ``noise_word [n]``: each lane's trial's kick-noise word (:func:`kx.sim.env.noise_words`).
     """
-    noise_key, policy_key = jax.random.split(key)
+    policy_key = jax.random.split(key)[1]
     s_max = env.noise_limit(params.kick_noise_deg)
 
     def one(state):
         pkeys = _lane_keys(policy_key, lane_id, state.t) if policy.stochastic else None
         action = env.fenced(policy.apply, lane_params, state, pkeys)
-
-        def draw(_):
-            keys = _lane_keys(noise_key, trial_id, state.t)
-            return jax.vmap(lambda k: jax.random.randint(k, (), -s_max, s_max + 1, dtype=jnp.int32))(keys)
-
-        noise = jax.lax.cond(s_max > 0, draw, lambda _: jnp.zeros_like(state.t), None)
+        noise = env.kick_noise(noise_word, state.t, s_max)
         return env.transition(state, action, noise, params, config)
 
     def body(carry):
@@ -97,14 +94,14 @@ def _advance_local(state: State, lane_params: Any, trial_id: jax.Array, lane_id:
 
 
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"))
-def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at, *, policy, config, n_dev):
+def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, *, policy, config, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes are done or fit its share of the next narrower width (a global
     count would need a collective every iteration, which measured slower). Returns the state and,
     per device, the iterations it ran and its live lanes ``[n_dev, 2]``."""
     local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
-        return local(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at)
+        return local(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at)
     mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
     lanes = jax.sharding.PartitionSpec(*([None] * 0), "lanes")
 
@@ -117,15 +114,15 @@ def _advance(state, lane_params, trial_id, lane_id, key, params, chunk, stop_at,
     out_specs = (spec(state), jax.sharding.PartitionSpec("lanes", None))
     # each device stops once its own live lanes fit its share of the narrower width
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
-        state, lane_params, trial_id, lane_id, key, params, chunk, stop_at // n_dev)
+        state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev)
 
 
 @functools.partial(jax.jit, static_argnames=("width",))
-def _compact(state: State, lane_params: Any, trial_id, lane_id, *, width: int):
+def _compact(state: State, lane_params: Any, noise_word, lane_id, *, width: int):
     """The ``width`` lanes that come first when live lanes are put before finished ones."""
     order = jnp.argsort(state.done, stable=True)[:width]
     take = lambda a: jnp.take(a, order, axis=-1)  # noqa: E731
-    return (jax.tree.map(take, state), jax.tree.map(take, lane_params), take(trial_id), take(lane_id))
+    return (jax.tree.map(take, state), jax.tree.map(take, lane_params), take(noise_word), take(lane_id))
 
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum")
@@ -182,6 +179,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # the same keys, so recording it twice writes the same values.
     lane_id = jnp.arange(width, dtype=jnp.int32) % n
     trial_id = lane_id % n_trials
+    noise_word = jnp.take(env.noise_words(jax.random.split(key)[0], jnp.arange(n_trials)), trial_id)
     state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
     lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
                                policy_params)
@@ -191,7 +189,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     while True:
         narrower = [w for w in ladder if w < width]
         stop_at = np.int32(narrower[0] if narrower else 0)
-        state, progress = _advance(state, lane_params, trial_id, lane_id, key, params,
+        state, progress = _advance(state, lane_params, noise_word, lane_id, key, params,
                                    np.int32(this_chunk), stop_at, policy=policy, config=config,
                                    n_dev=n_dev)
         this_chunk = min(2 * this_chunk, chunk)
@@ -205,8 +203,8 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         target = min(w for w in ladder if w >= n_live)
         if target < width:
             results = _record(results, state, lane_id)
-            state, lane_params, trial_id, lane_id = _compact(state, lane_params, trial_id, lane_id,
-                                                             width=target)
+            state, lane_params, noise_word, lane_id = _compact(state, lane_params, noise_word, lane_id,
+                                                               width=target)
             width = target
             widths.append(width)
     # to the host first: counters left sharded over devices would compile a partitioned _finish
@@ -220,31 +218,34 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
 
 
 def rollout(policy: Policy, policy_params: Any, start: State, params: KeepAwayParams,
-            config: KeepAwayConfig, *, key: jax.Array | None = None, n_steps: int | None = None):
+            config: KeepAwayConfig, *, key: jax.Array | None = None, n_steps: int | None = None,
+            trial: int = 0):
     """One episode step by step, every state kept (for rendering and inspection).
 
     ``policy_params`` is one parameter set (no leading axis). Returns the stacked states
     ``[n_steps + 1]`` (leading axis; the first is ``start``) and the actions taken ``[n_steps]``.
-    Steps after the episode ends repeat its final state.
+    Steps after the episode ends repeat its final state. With the same ``key``, ``trial = i`` plays
+    the kick noise of trial ``i`` of :func:`evaluate` (and a stochastic policy the keys of its lane
+    ``i``, the first policy's), so it replays that episode exactly.
     """
     n_steps = int(params.max_iterations) if n_steps is None else n_steps
     key = jax.random.key(0) if key is None else key
-    return _rollout(policy, policy_params, start, key, params, config=config, n_steps=n_steps)
+    return _rollout(policy, policy_params, start, key, params, jnp.int32(trial), config=config, n_steps=n_steps)
 
 
 @functools.partial(jax.jit, static_argnums=(0,), static_argnames=("config", "n_steps"))
-def _rollout(policy, policy_params, start, key, params, *, config, n_steps):
+def _rollout(policy, policy_params, start, key, params, trial, *, config, n_steps):
     noise_key, policy_key = jax.random.split(key)
     s_max = env.noise_limit(params.kick_noise_deg)
-    lane = jnp.zeros((1,), jnp.int32)
+    lane = jnp.full((1,), trial, jnp.int32)
+    word = env.noise_words(noise_key, lane)
     batched = jax.tree.map(lambda a: a[..., None], start)
     lp = jax.tree.map(lambda p: jnp.asarray(p)[..., None], policy_params)
 
     def body(state, _):
         pkeys = _lane_keys(policy_key, lane, state.t) if policy.stochastic else None
         action = env.fenced(policy.apply, lp, state, pkeys)
-        keys = _lane_keys(noise_key, lane, state.t)
-        noise = jax.vmap(lambda k: jax.random.randint(k, (), -s_max, s_max + 1, dtype=jnp.int32))(keys)
+        noise = env.kick_noise(word, state.t, s_max)
         nxt = env.transition(state, action, noise, params, config)
         return nxt, (nxt, action)
 

@@ -31,6 +31,7 @@ class RefState:
     done: bool = False
     reason: int = Reason.RUNNING
     passes: int = 0
+    contest: int = 0
     dispersion_sum: int = 0
     ball_centre_sum: int = 0
 
@@ -45,7 +46,7 @@ class RefState:
             origin=(i(a["origin_x"]), i(a["origin_y"])), direction=(i(a["dir_x"]), i(a["dir_y"])),
             substep=i(a["substep"]), kicker=i(a["kicker"]), t=i(a["t"]),
             done=bool(a["done"]), reason=i(a["reason"]), passes=i(a["passes"]),
-            dispersion_sum=i(a["dispersion_sum"]), ball_centre_sum=i(a["ball_centre_sum"]),
+            contest=i(a["contest"]), dispersion_sum=i(a["dispersion_sum"]), ball_centre_sum=i(a["ball_centre_sum"]),
         )
 
     def as_dict(self) -> dict:
@@ -56,7 +57,8 @@ class RefState:
             "origin_x": self.origin[0], "origin_y": self.origin[1],
             "dir_x": self.direction[0], "dir_y": self.direction[1], "substep": self.substep,
             "kicker": self.kicker, "t": self.t, "done": self.done,
-            "reason": self.reason, "passes": self.passes, "dispersion_sum": self.dispersion_sum,
+            "reason": self.reason, "passes": self.passes, "contest": self.contest,
+            "dispersion_sum": self.dispersion_sum,
             "ball_centre_sum": self.ball_centre_sum,
         }
 
@@ -135,7 +137,7 @@ def get_open_move(i: int, pos, s: RefState, ref, cfg: KeepAwayConfig):
 
 
 def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iterations: int,
-         taker_reaction_delay: int = 1) -> RefState:
+         taker_reaction_delay: int = 1, tackle_iterations: int = 3) -> RefState:
     """One iteration of the rules; returns a new state (a finished episode is returned as is)."""
     if s.done:
         return s
@@ -232,9 +234,15 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
     else:
         s.ball = s.keepers[s.holder]
 
-    # 6. Tackle.
-    if s.reason == Reason.RUNNING and s.holder >= 0 and s.keepers[s.holder] in s.takers:
-        s.reason = Reason.TACKLED
+    # 6. Tackle: a taker on the holder's cell contests the ball; tackle_iterations contested held
+    # iterations in a row lose it. A held, uncontested iteration resets the count; a flight keeps it.
+    if s.reason == Reason.RUNNING and s.holder >= 0:
+        if s.keepers[s.holder] in s.takers:
+            s.contest += 1
+            if s.contest >= tackle_iterations:
+                s.reason = Reason.TACKLED
+        else:
+            s.contest = 0
 
     s.t += 1
     if s.reason == Reason.RUNNING and s.t >= max_iterations:

@@ -30,6 +30,7 @@ MAX_KICK_NOISE_DEG = 29.0
 NOISE_DENOM = 16
 MAX_NOISE_FIELD = 20
 MAX_START_CLEARANCE = 4
+MAX_TACKLE_ITERATIONS = 100
 # Fixed-point scale of the accumulated distance statistics (integers, so that sums are exact and
 # independent of reduction order): distances are stored as round(DIST_SCALE * distance).
 DIST_SCALE = 32
@@ -40,7 +41,7 @@ class Reason(enum.IntEnum):
 
     RUNNING = 0
     INTERCEPTED = 1  # a taker stood on the ball's cell during a pass
-    TACKLED = 2  # a taker stood on the holder's cell at the end of an iteration
+    TACKLED = 2  # a taker contested the holder for tackle_iterations consecutive held iterations
     OUT_OF_FIELD = 3  # a pass left the field
     TIME_LIMIT = 4  # the episode ran max_iterations iterations
 
@@ -125,8 +126,14 @@ class KeepAwayParams:
     Attributes:
       max_iterations: iterations per trial (the paper: 4500).
       start_clearance: at reset no taker is within this Chebyshev distance of the holder (0..4).
-      kick_noise_deg: the largest random rotation of a pass's direction, in degrees (0 = off, <= 29).
-        The rotation is drawn uniformly from the angles atan(s/16), s integer, |atan(s/16)| <= this.
+      kick_noise_deg: the largest random rotation of a pass's direction, in degrees (0 = off, <= 29;
+        default 10). The rotation is drawn uniformly from the angles atan(s/16), s integer,
+        |atan(s/16)| <= this: with 10 degrees, s in -2..2 (0, +-3.6, +-7.1 degrees).
+      tackle_iterations: possession is lost once a taker has contested the ball, that is stood on the
+        holder's cell at the end of an iteration, for this many consecutive iterations in which a keeper
+        held the ball (RoboCup keep-away's turnover counter; default 3). An iteration in which the
+        holder is not contested resets the count; while a pass flies it is kept. 1 = the instant tackle
+        of the first kx versions.
       taker_reaction_delay: 1 = in the iteration of a kick the takers still go for the kicker's cell and
         react to the pass from the next iteration; 0 = they react at once (then no calibrated
         baseline keeps the ball; see docs/calibration.md).
@@ -134,14 +141,16 @@ class KeepAwayParams:
 
     max_iterations: int | jax.Array = 4500
     start_clearance: int | jax.Array = 4
-    kick_noise_deg: float | jax.Array = 0.0
+    kick_noise_deg: float | jax.Array = 10.0
     taker_reaction_delay: int | jax.Array = 1
+    tackle_iterations: int | jax.Array = 3
 
     def validate(self) -> "KeepAwayParams":
         """Raises :class:`KeepAwayError` naming the field if a concrete value is out of range."""
         try:
-            mi, sc, kn, rd = (float(jnp.asarray(v)) for v in (
-                self.max_iterations, self.start_clearance, self.kick_noise_deg, self.taker_reaction_delay))
+            mi, sc, kn, rd, ti = (float(jnp.asarray(v)) for v in (
+                self.max_iterations, self.start_clearance, self.kick_noise_deg, self.taker_reaction_delay,
+                self.tackle_iterations))
         except (TypeError, jax.errors.ConcretizationTypeError):
             return self  # traced: validated by the caller that built it
         if mi != int(mi) or not 1 <= mi <= MAX_ITERATIONS_LIMIT:
@@ -150,6 +159,8 @@ class KeepAwayParams:
             raise KeepAwayError(f"start_clearance: must be an integer in [0, {MAX_START_CLEARANCE}], got {sc:g}")
         if rd not in (0.0, 1.0):
             raise KeepAwayError(f"taker_reaction_delay: must be 0 or 1, got {rd:g}")
+        if ti != int(ti) or not 1 <= ti <= MAX_TACKLE_ITERATIONS:
+            raise KeepAwayError(f"tackle_iterations: must be an integer in [1, {MAX_TACKLE_ITERATIONS}], got {ti:g}")
         if not 0.0 <= kn <= MAX_KICK_NOISE_DEG:
             raise KeepAwayError(f"kick_noise_deg: must be in [0, {MAX_KICK_NOISE_DEG}], got {kn:g}")
         return self
@@ -181,6 +192,7 @@ class State:
     done: jax.Array  # [*B] bool
     reason: jax.Array  # [*B] Reason
     passes: jax.Array  # [*B] completed passes
+    contest: jax.Array  # [*B] consecutive held iterations a taker has contested the ball (see tackle_iterations)
     dispersion_sum: jax.Array  # [*B] sum over iterations of the sum over keeper pairs of DIST_SCALE*dist
     ball_centre_sum: jax.Array  # [*B] sum over iterations of DIST_SCALE * dist(ball cell, field centre)
 
