@@ -41,9 +41,11 @@ I32 = jnp.int32
 
 
 def initial_genome(key: jax.Array, config: NEATConfig, params: NEATParams) -> Genome:
-    """Inputs and bias fully connected to the outputs, weights ~ U(-weight_init_range, +range).
+    """Inputs and bias connected to the outputs, weights ~ U(-weight_init_range, +range): every link,
+    or each with probability ``initial_link_fraction`` (at least one).
 
-    Link ``(source slot s, output o)`` has innovation number ``s * n_outputs + o`` in every genome.
+    Link ``(source slot s, output o)`` has innovation number ``s * n_outputs + o`` (and that column) in
+    every genome that carries it.
     """
     n, c, f = config.max_nodes, config.max_conns, config.n_fixed
     slots = jnp.arange(n, dtype=I32)
@@ -53,11 +55,16 @@ def initial_genome(key: jax.Array, config: NEATConfig, params: NEATParams) -> Ge
     act = jnp.where(kind == OUTPUT, config.act_id(config.output_activation), 0).astype(I32)
     m = config.n_initial_conns
     idx = jnp.arange(c, dtype=I32)
-    used = idx < m
+    # the weights draw from ``key`` itself, as before the fraction existed (a fraction of 1 keeps every
+    # link, since uniform() < 1 always holds, so those genomes are unchanged)
+    k_w, k_keep, k_one = key, jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)
+    keep = jax.random.uniform(k_keep, (c,)) < params.initial_link_fraction
+    keep = keep | (~jnp.any(keep[:m]) & (idx == jax.random.randint(k_one, (), 0, m, I32)))
+    used = (idx < m) & keep
     src = jnp.where(used, idx // config.n_outputs, -1)
     dst = jnp.where(used, config.first_output + idx % config.n_outputs, -1)
     r = params.weight_init_range
-    w = jnp.where(used, jax.random.uniform(key, (c,), jnp.float32, -r, r), 0.0)
+    w = jnp.where(used, jax.random.uniform(k_w, (c,), jnp.float32, -r, r), 0.0)
     return Genome(node_id=jnp.where(slots < f, slots, -1), node_kind=kind, node_act=act,
                   node_valid=slots < f, conn_innov=jnp.where(used, idx, -1), conn_src=src.astype(I32),
                   conn_dst=dst.astype(I32), conn_weight=w, conn_enabled=used, conn_valid=used)
@@ -184,6 +191,40 @@ def _symmetric_unit(bits: jax.Array) -> jax.Array:
 
 
 def mutate_weights(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
+    """A weight mutation by ``params.weight_scheme``: 0, :func:`mutate_weights_stanley`; 1,
+    :func:`mutate_weights_sharpneat`. ``genes``: see :func:`_gene_bits`."""
+    return jax.lax.cond(params.weight_scheme == 1, lambda: mutate_weights_sharpneat(key, g, params, genes),
+                        lambda: mutate_weights_stanley(key, g, params, genes))
+
+
+def mutate_weights_sharpneat(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
+    """SharpNEAT 2's default weight mutation: a Gaussian step of sigma ``weight_small_sigma`` (with
+    probability ``weight_small_share``) or ``weight_large_sigma`` (``weight_large_share``), or else a
+    replacement by U(-init, init), on 1, 2 or 3 random connection genes or on each gene with probability
+    ``weight_select_fraction`` (the four selections equally likely); then clipped."""
+    k_kind, k_bits, k_norm = jax.random.split(key, 3)
+    u = jax.random.uniform(k_kind, (2,))
+    small = u[0] < params.weight_small_share
+    reset = u[0] >= params.weight_small_share + params.weight_large_share
+    selection = jnp.minimum(jnp.floor(u[1] * 4).astype(I32), 3)  # 0, 1, 2: that many genes + 1; 3: a fraction
+    bits = _gene_bits(k_bits, g.conn_valid, 2, genes)
+    unit = (bits[0] >> 8).astype(jnp.float32) * jnp.float32(2.0 ** -24)  # U[0, 1) per gene
+    score = jnp.where(g.conn_valid, unit, 2.0)
+    kth = -jax.lax.top_k(-score, 3)[0][jnp.minimum(selection, 2)]  # the (selection+1)-th smallest score
+    chosen = g.conn_valid & jnp.where(selection == 3, unit < params.weight_select_fraction, score <= kth)
+    c = g.conn_valid.shape[0]
+    if genes is None or genes >= c:
+        z = jax.random.normal(k_norm, (c,))
+    else:
+        z = jax.random.normal(k_norm, (genes,))[jnp.minimum(mask_rank(g.conn_valid), genes - 1)]
+    sigma = jnp.where(small, params.weight_small_sigma, params.weight_large_sigma)
+    fresh = _symmetric_unit(bits[1]) * params.weight_init_range
+    w = jnp.where(chosen, jnp.where(reset, fresh, g.conn_weight + sigma * z), g.conn_weight)
+    w = jnp.clip(w, -params.weight_range, params.weight_range)
+    return g.replace(conn_weight=jnp.where(g.conn_valid, w, 0.0))
+
+
+def mutate_weights_stanley(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
     """Each connection weight, with probability ``weight_mutate_rate``: perturbed by U(-p, p) with
     probability ``weight_perturb_prob``, else replaced by a fresh U(-init, init) value; then clipped.
     ``genes``: see :func:`_gene_bits`."""
@@ -228,7 +269,7 @@ def mutate_activation(key: jax.Array, g: Genome, config: NEATConfig) -> Genome:
 # --------------------------------------------------------------------------------------------------
 # Structural mutations
 
-NONE, ADD_NODE, ADD_LINK = 0, 1, 2
+NONE, ADD_NODE, ADD_LINK, DELETE_LINK = 0, 1, 2, 3
 
 
 def _adjacency(src: jax.Array, dst: jax.Array, mask: jax.Array, n: int) -> jax.Array:
@@ -353,22 +394,26 @@ def link_order(reach: jax.Array, src_slot: jax.Array, dst_slot: jax.Array, confi
 
 
 def _structure_draw(key: jax.Array, params: NEATParams):
+    """One roulette draw: add node, add link, delete link or none; ``k_split`` also picks the gene a
+    delete removes (the two never happen together)."""
     k_u, k_split, k_link = jax.random.split(key, 3)
     u = jax.random.uniform(k_u)
     want_node = u < params.add_node_prob
     want_link = ~want_node & (u < params.add_node_prob + params.add_link_prob)
-    return want_node, want_link, k_split, k_link
+    want_delete = ~want_node & ~want_link & (u < params.add_node_prob + params.add_link_prob + params.delete_link_prob)
+    return want_node, want_link, want_delete, k_split, k_link
 
 
 def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEATConfig, link_pick=None):
-    """Draw this genome's structural mutation: add node with ``add_node_prob``, else add link with
-    ``add_link_prob``, else none. Returns ``(kind, key1, key2, (node_full, link_full, link_exhausted))``:
-    for ADD_NODE, key1 is the column of the link to split; for ADD_LINK, key1 and key2 are the source and
-    target node ids. ``node_full``/``link_full``: an add node/link skipped for lack of a hidden slot or of
-    gene room (``max_genes``); ``link_exhausted``: no new feed-forward link is left to add.
-    ``link_pick``, if given, is the ``(pair, has_pair)`` already drawn for this genome by
-    :func:`pick_links`."""
-    want_node, want_link, k_split, k_link = _structure_draw(key, params)
+    """Draw this genome's structural mutation: add node with ``add_node_prob``, add link with
+    ``add_link_prob``, delete link with ``delete_link_prob``, else none. Returns ``(kind, key1, key2,
+    (node_full, link_full, link_exhausted))``: for ADD_NODE, key1 is the column of the link to split;
+    for ADD_LINK, key1 and key2 are the source and target node ids; for DELETE_LINK, key1 is the column
+    of the gene to remove (never a genome's last gene). ``node_full``/``link_full``: an add node/link
+    skipped for lack of a hidden slot or of gene room (``max_genes``); ``link_exhausted``: no new
+    feed-forward link is left to add. ``link_pick``, if given, is the ``(pair, has_pair)`` already
+    drawn for this genome by :func:`pick_links`."""
+    want_node, want_link, want_delete, k_split, k_link = _structure_draw(key, params)
     split, has_split = _pick(k_split, g.conn_enabled)
     genes = n_conns(g)
     node_room = (n_hidden(g) < config.n_hidden) & (genes + 2 <= config.genes)
@@ -376,9 +421,13 @@ def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEA
     pair, has_pair = _pick(k_link, link_candidates(g, config)) if link_pick is None else link_pick[:2]
     link_room = genes + 1 <= config.genes
     do_link = want_link & has_pair & link_room
+    gone, _ = _pick(k_split, g.conn_valid)
+    do_delete = want_delete & (genes >= 2)
     n = config.max_nodes
-    kind = jnp.where(do_node, ADD_NODE, jnp.where(do_link, ADD_LINK, NONE)).astype(I32)
-    key1 = jnp.where(do_node, split, jnp.where(do_link, g.node_id[pair // n], -1)).astype(I32)
+    kind = jnp.where(do_node, ADD_NODE, jnp.where(do_link, ADD_LINK, jnp.where(do_delete, DELETE_LINK, NONE)))
+    kind = kind.astype(I32)
+    key1 = jnp.where(do_node, split, jnp.where(do_link, g.node_id[pair // n], jnp.where(do_delete, gone, -1)))
+    key1 = key1.astype(I32)
     key2 = jnp.where(do_link, g.node_id[pair % n], -1).astype(I32)
     return kind, key1, key2, (want_node & has_split & ~node_room, want_link & has_pair & ~link_room,
                               want_link & ~has_pair)
@@ -392,7 +441,7 @@ def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATPara
     :func:`link_order` that adding the picked link needs (the identity for the others)."""
     p = frozen.shape[0]
     m = min(p, max(8, p // 8))
-    _, want, _, k_link = jax.vmap(lambda k: _structure_draw(k, params))(keys)
+    _, want, _, _, k_link = jax.vmap(lambda k: _structure_draw(k, params))(keys)
     want = want & ~frozen
     idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
     sel = jnp.minimum(idx, p - 1)
@@ -465,7 +514,8 @@ def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_
     output), the link into it gets weight 1 (innovation ``innov_a``, column ``col_a``), the link out of
     it the old weight (``innov_b``, ``col_b``). Add link joins node ids ``key1 -> key2`` with a
     U(-init, init) weight (``innov_a``, ``col_a``) and reorders the hidden slots by ``order`` (from
-    :func:`link_order`; computed here if not given).
+    :func:`link_order`; computed here if not given). Delete link clears column ``key1`` (its nodes stay:
+    a hidden node left without links computes a constant or nothing).
     """
     k_w, k_act = jax.random.split(key)
     is_node, is_link = kind == ADD_NODE, kind == ADD_LINK
@@ -501,8 +551,10 @@ def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_
     w = jnp.where(put_a, jnp.where(is_node, 1.0, link_w), jnp.where(put_b, old_w, g.conn_weight))
     innov = jnp.where(put_a, innov_a, jnp.where(put_b, innov_b, g.conn_innov))
     enabled = (g.conn_enabled & ~(is_node & (cols == split))) | put_a | put_b
-    return g.replace(conn_src=src.astype(I32), conn_dst=dst.astype(I32), conn_weight=w,
-                     conn_innov=innov.astype(I32), conn_enabled=enabled, conn_valid=g.conn_valid | put_a | put_b)
+    gone = (kind == DELETE_LINK) & (cols == key1)
+    return g.replace(conn_src=jnp.where(gone, -1, src).astype(I32), conn_dst=jnp.where(gone, -1, dst).astype(I32),
+                     conn_weight=jnp.where(gone, 0.0, w), conn_innov=jnp.where(gone, -1, innov).astype(I32),
+                     conn_enabled=enabled & ~gone, conn_valid=(g.conn_valid | put_a | put_b) & ~gone)
 
 
 def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_id: jax.Array,
@@ -522,8 +574,10 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
     proposed = jnp.where(frozen, NONE, kind)
     split_innov = jnp.take_along_axis(pop.conn_innov, jnp.clip(key1, 0, config.max_conns - 1)[:, None], 1)[:, 0]
     used = jnp.any(pop.conn_valid, axis=0)
+    deleting = proposed == DELETE_LINK  # needs no innovation number or column
     kind, node_id, ia, ib, ca, cb, next_node_id, next_innov, n_nodes, n_links, _ = assign_innovations(
-        proposed, key1, key2, split_innov, used, next_node_id, next_innov)
+        jnp.where(deleting, NONE, proposed), key1, key2, split_innov, used, next_node_id, next_innov)
+    kind = jnp.where(deleting, DELETE_LINK, kind)
     no_column = kind != proposed  # dropped: no free column left
 
     def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz, order):

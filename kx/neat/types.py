@@ -150,14 +150,33 @@ class NEATParams:
     respeciate: int = 0
     # Weights.
     weight_range: float = 5.0  # weights are clipped to [-weight_range, weight_range]
-    weight_init_range: float = 1.0  # initial and replacement weights ~ U(-r, r)
-    weight_mutate_prob: float = 0.8  # chance that an offspring's weights are mutated
-    weight_mutate_rate: float = 1.0  # then, chance per connection gene
-    weight_perturb_prob: float = 0.9  # a mutated weight is perturbed (else replaced)
-    weight_perturb_power: float = 2.5  # perturbation ~ U(-p, p)
-    # Structure (an offspring gets at most one structural mutation: add node, else add link).
+    weight_init_range: float = 1.0  # initial, new-link and replacement weights ~ U(-r, r)
+    weight_mutate_prob: float = 0.8  # chance that an offspring without a structural mutation gets a weight mutation
+    # How a weight mutation changes the weights. weight_scheme 0 (Stanley's NEAT): each connection
+    # gene, with probability weight_mutate_rate, is perturbed by U(-p, p) (p = weight_perturb_power)
+    # with probability weight_perturb_prob, else replaced.
+    weight_scheme: int = 0
+    weight_mutate_rate: float = 1.0
+    weight_perturb_prob: float = 0.9
+    weight_perturb_power: float = 2.5
+    # weight_scheme 1 (SharpNEAT 2's default): one of three kinds, a Gaussian step of sigma
+    # weight_small_sigma (with probability weight_small_share), a Gaussian step of sigma
+    # weight_large_sigma (weight_large_share) or a replacement (the rest), applied to one of four
+    # selections drawn uniformly: 1, 2 or 3 random connection genes, or each gene with probability
+    # weight_select_fraction.
+    weight_small_sigma: float = 0.02
+    weight_large_sigma: float = 1.0
+    weight_small_share: float = 0.455
+    weight_large_share: float = 0.454
+    weight_select_fraction: float = 0.02
+    # Structure: an offspring gets at most one structural mutation, add node with add_node_prob, add
+    # link with add_link_prob, delete link with delete_link_prob (one draw: a roulette).
     add_node_prob: float = 0.03
     add_link_prob: float = 0.05
+    delete_link_prob: float = 0.0
+    # Share of the (inputs + bias) x outputs links present in an initial genome (each drawn
+    # independently; a genome left with none gets one at random).
+    initial_link_fraction: float = 1.0
     reenable_prob: float = 0.0  # chance per offspring to re-enable one disabled gene
     activation_mutate_prob: float = 0.0  # chance per offspring to redraw one hidden node's activation
     # Reproduction.
@@ -172,15 +191,24 @@ class NEATParams:
     def validate(self) -> None:
         """Raise :class:`NEATError` naming the first value out of range (concrete values only)."""
         probs = ("weight_mutate_prob", "weight_mutate_rate", "weight_perturb_prob", "add_node_prob",
-                 "add_link_prob", "reenable_prob", "activation_mutate_prob", "disable_inherit_prob",
-                 "mutation_only_prob", "interspecies_prob")
+                 "add_link_prob", "delete_link_prob", "reenable_prob", "activation_mutate_prob",
+                 "disable_inherit_prob", "mutation_only_prob", "interspecies_prob", "weight_small_share",
+                 "weight_large_share", "weight_select_fraction")
         for f in probs:
             v = float(getattr(self, f))
             if not 0.0 <= v <= 1.0:
                 raise NEATError(f"NEATParams.{f} = {v}: allowed a probability in [0, 1]")
-        if float(self.add_node_prob) + float(self.add_link_prob) > 1.0:
-            raise NEATError("NEATParams.add_node_prob + add_link_prob must be at most 1")
-        for f in ("c1", "c2", "c3", "threshold_step", "weight_perturb_power"):
+        if float(self.add_node_prob) + float(self.add_link_prob) + float(self.delete_link_prob) > 1.0:
+            raise NEATError("NEATParams.add_node_prob + add_link_prob + delete_link_prob must be at most 1")
+        if float(self.weight_small_share) + float(self.weight_large_share) > 1.0:
+            raise NEATError("NEATParams.weight_small_share + weight_large_share must be at most 1")
+        if int(self.weight_scheme) != self.weight_scheme or int(self.weight_scheme) not in (0, 1):
+            raise NEATError(f"NEATParams.weight_scheme = {self.weight_scheme}: allowed 0 (Stanley: per-gene "
+                            "uniform perturbation or replacement) or 1 (SharpNEAT: Gaussian steps on a few genes)")
+        if not 0.0 < float(self.initial_link_fraction) <= 1.0:
+            raise NEATError(f"NEATParams.initial_link_fraction = {self.initial_link_fraction}: allowed (0, 1]")
+        for f in ("c1", "c2", "c3", "threshold_step", "weight_perturb_power", "weight_small_sigma",
+                  "weight_large_sigma"):
             if not float(getattr(self, f)) >= 0.0:
                 raise NEATError(f"NEATParams.{f} = {getattr(self, f)}: allowed a value >= 0")
         for f in ("compat_threshold", "threshold_min", "weight_range", "weight_init_range"):
