@@ -1,12 +1,13 @@
-"""Re-evaluate a run's champion on held-out trials, in any task: ``python -m kx.evaluate RUN_DIR``.
+"""Play a run's validated champion on test trials, in any task: ``python -m kx.evaluate RUN_DIR``.
 
     python -m kx.evaluate runs/neat_3v2-s0-... --task 4v3 --trials 1000
 
-The champion is the genome with the best fitness the run has seen (on its generation's 30 trials, a
-maximum over noisy estimates and so biased upward); here it meets ``--trials`` start states that no
-generation of the run drew, next to the hand-coded baselines on the same states. A network of the
-fixed 13/3 layout plays any team size unchanged (zero-shot transfer); a full-layout network fits only
-the team size it was evolved for. Prints the figures and writes them to
+The champion is the run's validated champion: of each generation's best genome by training fitness,
+the one with the best mean on the run's validation states (``kx.evolve.run``). Here it meets
+``--trials`` start states of the test stream (:mod:`kx.evolve.streams`), which neither training nor
+validation ever drew, next to the hand-coded baselines on the same states and kick noise. A network
+of the fixed 13/3 layout plays any team size unchanged (zero-shot transfer); a full-layout network fits
+only the team size it was evolved for. Prints the figures and writes them to
 ``RUN_DIR/eval/<task>-<trials>-seed<seed>.json``.
 """
 
@@ -27,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("run_dir")
     p.add_argument("--task", default=None, help="task to play (default: the run's own), e.g. 4v3")
     p.add_argument("--trials", type=int, default=1000)
-    p.add_argument("--seed", type=int, default=None, help="seed of the held-out trials (default: the run's)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the test trials (default: the run's)")
     p.add_argument("--step", type=int, default=None, help="checkpoint to read (default: the latest)")
     p.add_argument("--no-baselines", action="store_true", help="skip the hand-coded baselines")
     args = p.parse_args(argv)
@@ -60,28 +61,30 @@ def main(argv: list[str] | None = None) -> int:
     import jax
     import numpy as np
 
+    from kx.evolve import streams
     from kx.evolve.policy import neat_policy
-    from kx.neat.algorithm import NEAT
     from kx.neat.network import build
     from kx.sim import env
     from kx.sim import evaluate as ev
     from kx.sim.policies import BASELINES
     from kx.sim.types import Reason
 
-    neat = NEAT(source.neat, source.neat_params)
+    trainer = run_lib.Trainer(cfg)
     try:
-        step, state, meta = run_lib.restore_checkpoint(
-            run_dir, jax.eval_shape(lambda: neat.init(jax.random.key(0))), args.step, neat_config=source.neat)
+        step, state, meta = run_lib.restore_checkpoint(run_dir, jax.eval_shape(trainer.init), args.step,
+                                                       neat_config=source.neat)
     except run_lib.RunError as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
+    if int(state.champion_generation) < 0:
+        print(f"kx.evaluate: error: checkpoint {step} of {run_dir} holds no validated champion yet", file=sys.stderr)
+        return 2
     seed = cfg.seed if args.seed is None else args.seed
-    key = jax.random.fold_in(jax.random.key(seed), run_lib.HELD_OUT)
-    k_start, k_noise = jax.random.split(jax.random.fold_in(key, 1))
-    starts = env.reset_batch(k_start, args.trials, target.sim_params, target.sim)
-    net = jax.tree.map(lambda a: a[None], build(state.best_genome, source.neat))
+    keys = streams.test(seed)
+    starts = env.reset_batch(keys.starts, args.trials, target.sim_params, target.sim)
+    net = jax.tree.map(lambda a: a[None], build(state.champion, source.neat))
     policy = neat_policy(target.sim, source.neat, source.layout)
-    stats = ev.evaluate(policy, net, starts, target.sim_params, target.sim, key=k_noise)
+    stats = ev.evaluate(policy, net, starts, target.sim_params, target.sim, key=keys.eval)
 
     def summary(s) -> dict:
         f = np.asarray(s.fitness).reshape(-1)
@@ -95,17 +98,19 @@ def main(argv: list[str] | None = None) -> int:
 
     result = {"run_dir": str(run_dir), "checkpoint": step, "generations_done": meta["generation"],
               "source_task": cfg.task, "task": target.sim.name, "trials": args.trials, "seed": seed,
-              "champion_training_fitness": float(state.best_fitness), "champion": summary(stats)}
+              "champion_generation": int(state.champion_generation) + 1,
+              "champion_validation": float(state.champion_validation), "champion": summary(stats)}
     if not args.no_baselines:
         result["baselines"] = {}
         for name, make in BASELINES.items():
             pol = make(target.sim)
             result["baselines"][name] = summary(ev.evaluate(pol, None, starts, target.sim_params, target.sim,
-                                                            key=k_noise))
+                                                            key=keys.eval))
     c = result["champion"]
-    print(f"champion of {run_dir} (checkpoint {step}, trained on {cfg.task}; fitness "
-          f"{result['champion_training_fitness']:.4f} on its training trials)")
-    print(f"{target.sim.name}, {args.trials} held-out trials (seed {seed}): mean fitness {c['mean_fitness']:.4f} "
+    print(f"validated champion of {run_dir} (checkpoint {step}, trained on {cfg.task}; from generation "
+          f"{result['champion_generation']}, {result['champion_validation']:.4f} on its {cfg.validation_trials} "
+          f"validation states)")
+    print(f"{target.sim.name}, {args.trials} test trials (seed {seed}): mean fitness {c['mean_fitness']:.4f} "
           f"(sd {c['sd']:.4f}, 95% CI {c['ci95'][0]:.4f}..{c['ci95'][1]:.4f}), median {c['median']:.4f}, "
           f"passes {c['mean_passes']:.1f}; ended by " + ", ".join(f"{k} {v:.0%}" for k, v in c["reasons"].items()))
     for name, b in result.get("baselines", {}).items():

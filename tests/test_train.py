@@ -19,6 +19,7 @@ from kx import evaluate as evaluate_cli
 from kx import train as train_cli
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
+from kx.evolve import streams
 from kx.sim import env
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -70,22 +71,31 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     for r in rows:
         assert 0.0 <= float(r["mean_fitness"]) <= float(r["best_fitness"]) <= 1.0
         assert 1 <= int(r["n_species"]) <= 10 and 0.0 < float(r["live_fraction"]) <= 1.0
-    # the champion replayed on held-out states, next to the hand-coded policies on the same states
+    # each generation's champion replayed on the validation states, next to the hand-coded policies there
     base = json.loads((run_dir / "baselines.json").read_text())
-    assert base["trials"] == cfg["heldout_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}
+    assert base["trials"] == cfg["validation_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}
     assert base["mean_fitness"]["hold"] < base["mean_fitness"]["heuristic"]
-    heldout = [float(r["champion_heldout"]) for r in rows]
-    assert all(0.0 < h <= 1.0 for h in heldout)
+    val = [float(r["champion_validation"]) for r in rows]
+    assert all(0.0 < v <= 1.0 for v in val)
+    # the run's champion: the per-generation champion with the best validation score (earliest on ties)
+    assert [float(r["best_validation"]) for r in rows] == list(np.maximum.accumulate(val))
+    assert [int(r["best_validation_generation"]) for r in rows] == [
+        int(np.argmax(val[: i + 1])) for i in range(len(val))]
+    state, meta = _final_state(run_dir)
+    assert float(state.champion_validation) == np.float32(max(val)) and meta["best_validation"] == max(val)
     trainer = run_lib.Trainer(_cfg(run_dir))
+    assert trainer.validate(state.champion) == float(state.champion_validation)
     first = trainer.step(0, trainer.init(), -np.inf).row
-    assert first["champion_heldout"] == heldout[0] and first["best_fitness"] == best[0]
+    assert first["champion_validation"] == val[0] and first["best_fitness"] == best[0]
+    for k in ("node_overflow", "link_overflow", "link_exhausted", "species_overflow"):
+        assert all(int(r[k]) >= 0 for r in rows), k
     with Image.open(run_dir / "progress.png") as im:
         assert im.format == "PNG" and im.size[0] > 300
     with Image.open(run_dir / "champion.gif") as im:
         assert im.format == "GIF" and im.n_frames > 1
-    # the last 2 checkpoints are kept, and the one of the generation with the best fitness
+    # the last 2 checkpoints are kept, and the one of the generation whose champion validated best
     steps = sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
-    best_step = int(np.argmax(best)) + 1
+    best_step = int(np.argmax(val)) + 1
     assert steps == sorted({GENERATIONS - 1, GENERATIONS, best_step})
     lines = [line for line in out.splitlines() if line.startswith("gen ")]
     assert len(lines) == GENERATIONS and "ETA" in lines[-1] and "species" in lines[-1] and "s/gen" in lines[-1]
@@ -115,7 +125,7 @@ def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(tr
     assert meta_a == meta_b
     for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    drop = ("eval_seconds", "evolve_seconds", "heldout_seconds", "generation_seconds")
+    drop = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
     strip = lambda rows: [{k: v for k, v in r.items() if k not in drop} for r in rows]  # noqa: E731
     assert strip(_rows(run_dir)) == strip(_rows(reference))
 
@@ -191,41 +201,54 @@ def test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason(capsys, 
     shutil.copytree(src, broken)
     step, state, meta = run_lib.restore_checkpoint(broken, jax.eval_shape(run_lib.Trainer(
         cfg_lib.from_dict(json.loads((src / "config.json").read_text()))).init))
-    state = state.replace(population=state.population.replace(
-        conn_src=state.population.conn_src.at[3, 0].set(999)))
+    col = int(np.argmax(np.asarray(state.neat.population.conn_valid[3])))  # a column genome 3 uses
+    state = state.replace(neat=state.neat.replace(population=state.neat.population.replace(
+        conn_src=state.neat.population.conn_src.at[3, col].set(999))))
     shutil.rmtree(broken / "checkpoints" / str(step))
     run_lib.save_checkpoint(run_lib._manager(broken / "checkpoints", 3), step, state, meta)
     err = _err(capsys, ["--workdir", str(broken), "--resume", "--config.generations=8"])
     assert f"checkpoint {step}" in err and "invalid genomes" in err and "genome 3: link 999->" in err
 
 
-def test_evaluate_plays_the_champion_on_held_out_trials_of_another_task(capsys, trained):
+def test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task(capsys, trained):
     run_dir, _ = trained
     assert evaluate_cli.main([str(run_dir), "--task", "4v3", "--trials", "12", "--no-baselines"]) == 0
     out = json.loads((run_dir / "eval" / "4v3-12-seed0.json").read_text())
     assert out["task"] == "4v3" and out["checkpoint"] == GENERATIONS and out["trials"] == 12
     assert 0.0 < out["champion"]["mean_fitness"] <= 1.0
     assert abs(sum(out["champion"]["reasons"].values()) - 1.0) < 1e-6
+    state, _ = _final_state(run_dir)
+    assert out["champion_validation"] == float(state.champion_validation)
+    assert out["champion_generation"] == int(state.champion_generation) + 1
     capsys.readouterr()
     assert "--trials: allowed" in _err(capsys, [str(run_dir), "--trials", "0"], evaluate_cli)
     assert "task:" in _err(capsys, [str(run_dir), "--task", "2v2"], evaluate_cli)
 
 
-def test_heldout_replay_uses_its_own_states_and_can_be_switched_off(tmp_path):
+def test_training_validation_and_test_states_are_disjoint_streams(tmp_path):
     overrides = [s.removeprefix("--config.") for s in SMALL]
-    on = run_lib.Trainer(cfg_lib.load(None, overrides + ["heldout_trials=8"]))
-    # the held-out states are distinct, and none is a training state of the first generation
-    k_trials, _ = jax.random.split(run_lib.trial_key(0, 0))
-    train_starts = env.reset_batch(k_trials, 4, on.exp.sim_params, on.exp.sim)
-    cells = lambda s: np.concatenate([np.asarray(a) for a in (s.keeper_x, s.keeper_y, s.taker_x, s.taker_y)]).T  # noqa: E731
-    held, train = cells(on.heldout_starts), cells(train_starts)
-    assert held.shape[0] == 8 and len({h.tobytes() for h in held}) == 8
-    assert not {h.tobytes() for h in held} & {t.tobytes() for t in train}
-    # the replay of a genome is a pure function of the genome and the run's seed
-    genome = jax.tree.map(lambda a: a[0], on.init().population)
-    assert on.heldout(genome) == on.heldout(genome) == run_lib.Trainer(on.cfg).heldout(genome)
-    off = run_lib.Trainer(cfg_lib.load(None, overrides + ["heldout_trials=0"]))
-    row = off.step(0, off.init(), -np.inf).row
-    assert np.isnan(row["champion_heldout"]) and "champion held-out nan" in run_lib.progress_line(row, 1, None)
-    run_lib.plot_progress([row], tmp_path / "p.png", "off")
+    tr = run_lib.Trainer(cfg_lib.load(None, overrides + ["validation_trials=64"]))
+    cells = lambda s: {c.tobytes() for c in np.concatenate(  # noqa: E731
+        [np.asarray(a) for a in (s.keeper_x, s.keeper_y, s.taker_x, s.taker_y, s.holder[None])]).T}
+    sim, params = tr.exp.sim, tr.exp.sim_params
+    train = set().union(*(cells(env.reset_batch(streams.training(0, g).starts, 64, params, sim)) for g in range(20)))
+    val = cells(tr.validation_starts)
+    test = cells(env.reset_batch(streams.test(0).starts, 64, params, sim))
+    assert len(val) == 64 and len(test) == 64 and len(train) == 20 * 64
+    assert not (val & train) and not (test & train) and not (val & test)
+    # no key of one use is the key of another (split(k, n)[i] == fold_in(k, i) under the default RNG)
+    keys = [streams.training(0, 0).starts, streams.training(0, 0).eval, streams.validation(0).starts,
+            streams.validation(0).eval, streams.test(0).starts, streams.test(0).eval, streams.learner_init(0),
+            streams.learner_step(0, 0)]
+    trial_keys = [jax.random.split(streams.training(0, 0).starts, 64)[i] for i in range(64)]
+    data = {tuple(np.asarray(jax.random.key_data(k)).ravel()) for k in keys + trial_keys}
+    assert len(data) == len(keys) + len(trial_keys)
+    # the validation replay of a genome is a pure function of the genome and the run's seed
+    genome = jax.tree.map(lambda a: a[0], tr.init().neat.population)
+    assert tr.validate(genome) == tr.validate(genome) == run_lib.Trainer(tr.cfg).validate(genome)
+    assert "validation_trials: allowed an integer in [1, 100000]" in str(
+        pytest.raises(cfg_lib.ConfigError, cfg_lib.validate, cfg_lib.load(None, ["validation_trials=0"])).value)
+    row = tr.step(0, tr.init(), -np.inf).row
+    assert "validation" in run_lib.progress_line(row, 1, None)
+    run_lib.plot_progress([row], tmp_path / "p.png", "one")
     assert (tmp_path / "p.png").stat().st_size > 1000

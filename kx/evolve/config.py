@@ -17,6 +17,7 @@ from typing import Any
 import ml_collections
 
 from kx.neat import presets
+from kx.neat.activations import ACTIVATIONS
 from kx.neat.types import NEATConfig, NEATError, NEATParams
 from kx.sim import env, observe
 from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
@@ -29,16 +30,22 @@ PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
 # Fields that may change when a run is resumed (how long it runs and what it writes, not what it
 # computes); every other field must equal the checkpoint's.
-RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "heldout_trials", "gif", "gif_frames")
+RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames")
 
 
 class ConfigError(ValueError):
     """A config field that does not exist or holds a value out of range."""
 
 
-def base_config() -> ml_collections.ConfigDict:
-    """The paper's source task with NEAT (Table 2), every field a user may set."""
-    ncfg, nparams = presets.keepaway()
+def neat_params_fields(params: NEATParams) -> dict:
+    """A :class:`NEATParams` as ``neat.*`` config values (plain Python numbers)."""
+    return {f.name: getattr(params, f.name) for f in dataclasses.fields(NEATParams)}
+
+
+def base_config(reading: str = "sharpneat") -> ml_collections.ConfigDict:
+    """The paper's source task with NEAT (Table 2 in ``reading`` "sharpneat", the default, or
+    "literal"; see :mod:`kx.neat.presets`), every field a user may set."""
+    ncfg, nparams = {"sharpneat": presets.keepaway_sharpneat, "literal": presets.keepaway_literal}[reading]()
     sim_cfg, sim_params = KeepAwayConfig(), KeepAwayParams()
     c = ml_collections.ConfigDict()
     c.task = "3v2"  # "<keepers>v<takers>": the paper's 3v2, 4v3, 5v3, 6v4 or any other in range
@@ -50,17 +57,20 @@ def base_config() -> ml_collections.ConfigDict:
     c.seed = 0
     c.checkpoint_every = 5  # generations between checkpoints (and one at the end)
     c.keep_checkpoints = 3  # the last few are kept, and the best (by best fitness) too
-    c.heldout_trials = 100  # each generation's champion replayed on this many held-out start states (0: off)
+    # each generation's champion (by training fitness) replays on this many validation start states; the
+    # run's champion is the one that validates best
+    c.validation_trials = 100
     c.gif = True  # render the champion's episode at the end
     c.gif_frames = 300
     c.sim = ml_collections.ConfigDict({
         "field_size": sim_cfg.field_size, "agent_speed": sim_cfg.agent_speed, "ball_speed": sim_cfg.ball_speed,
         "n_chasers": sim_cfg.n_chasers,
         **{f: getattr(sim_params, f) for f in ("max_iterations", "start_clearance", "kick_noise_deg",
-                                               "taker_reaction_delay")}})
+                                               "taker_reaction_delay", "tackle_iterations")}})
     c.sim.kick_noise_deg = float(c.sim.kick_noise_deg)
-    neat = {f.name: getattr(nparams, f.name) for f in dataclasses.fields(NEATParams)}
-    neat.update(max_hidden=ncfg.max_nodes - ncfg.n_fixed, species_capacity=ncfg.species_capacity,
+    neat = neat_params_fields(nparams)
+    neat.update(output_activation=ncfg.output_activation, hidden_activation=ncfg.hidden_activation,
+                max_hidden=ncfg.max_nodes - ncfg.n_fixed, species_capacity=ncfg.species_capacity,
                 extra_conns=ncfg.max_conns - ncfg.n_initial_conns, extra_genes=ncfg.genes - ncfg.n_initial_conns)
     c.neat = ml_collections.ConfigDict(neat)
     return c
@@ -170,8 +180,8 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
           cfg.checkpoint_every)
     _need(_int(cfg.keep_checkpoints) and cfg.keep_checkpoints >= 1, "keep_checkpoints", "an integer >= 1",
           cfg.keep_checkpoints)
-    _need(_int(cfg.heldout_trials) and 0 <= cfg.heldout_trials <= 100_000, "heldout_trials",
-          "an integer in [0, 100000]", cfg.heldout_trials)
+    _need(_int(cfg.validation_trials) and 1 <= cfg.validation_trials <= 100_000, "validation_trials",
+          "an integer in [1, 100000]", cfg.validation_trials)
     _need(isinstance(cfg.gif, bool), "gif", "true or false", cfg.gif)
     _need(_int(cfg.gif_frames) and 1 <= cfg.gif_frames <= 5000, "gif_frames", "an integer in [1, 5000]",
           cfg.gif_frames)
@@ -188,7 +198,8 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     try:
         sim_params = KeepAwayParams(max_iterations=s.max_iterations, start_clearance=s.start_clearance,
                                     kick_noise_deg=s.kick_noise_deg,
-                                    taker_reaction_delay=s.taker_reaction_delay).validate()
+                                    taker_reaction_delay=s.taker_reaction_delay,
+                                    tackle_iterations=s.tackle_iterations).validate()
         env.check(sim, sim_params)
     except KeepAwayError as e:
         raise ConfigError(f"sim.{e}") from None
@@ -200,12 +211,16 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
           f"at most population_size ({cfg.population_size})", n["species_capacity"])
     _need(n["extra_genes"] <= n["extra_conns"], "neat.extra_genes", f"at most neat.extra_conns ({n['extra_conns']})",
           n["extra_genes"])
+    for f in ("output_activation", "hidden_activation"):
+        _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"neat.{f}", f"one of {sorted(ACTIVATIONS)}", n[f])
     n_in, n_out = observe.n_inputs(cfg.layout, sim), observe.n_outputs(cfg.layout, sim)
     try:
         neat_cfg, _ = presets.keepaway(
             n_inputs=n_in, n_outputs=n_out, population_size=cfg.population_size,
             max_nodes=n_in + 1 + n_out + n["max_hidden"], max_conns=(n_in + 1) * n_out + n["extra_conns"],
-            max_genes=(n_in + 1) * n_out + n["extra_genes"], species_capacity=n["species_capacity"])
+            max_genes=(n_in + 1) * n_out + n["extra_genes"], species_capacity=n["species_capacity"],
+            output_activation=n["output_activation"], hidden_activation=n["hidden_activation"],
+            activation_options=tuple(dict.fromkeys((n["hidden_activation"], n["output_activation"]))))
         neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
         neat_params.validate()
         if neat_params.target_species > neat_cfg.species_capacity:

@@ -1,0 +1,69 @@
+"""Every random stream of a run, in one place: which key feeds what, so that no two uses share keys.
+
+A run with seed ``s`` derives everything from ``root = jax.random.key(s)``::
+
+    stream = fold_in(root, STREAM)                    STREAM: TRAIN 1, VALIDATION 2, TEST 3, LEARNER 4
+    TRAIN:       k = fold_in(stream, generation)      the generation's shared trials
+    VALIDATION:  k = fold_in(stream, 0)               the same validation states every generation
+    TEST:        k = fold_in(stream, 0)               final reports only (kx.evaluate, kx.bench learning)
+                 then starts = fold_in(k, 0) (start states: env.reset_batch splits it per trial)
+                      eval   = fold_in(k, 1) (the evaluator: kick noise and policy noise, which
+                                              kx.sim.evaluate splits from it)
+    LEARNER:     init = fold_in(stream, 0), generation g's learner step = fold_in(fold_in(stream, 1), g)
+
+Why ``fold_in`` and distinct indices everywhere: under JAX's default RNG ``split(k, n)[i]`` equals
+``fold_in(k, i)``, so a key that is split for one use and folded for another hands the same key to
+both (the first kx runs gave the evaluator ``fold_in(k, 1)`` of the key whose ``split`` made the start
+states: trial 1's reset key). Here every key has one derivation path, and the start states of the
+three sets of trials come from three different streams, so training, validation and test states are
+disjoint draws (the tests check that no validation or test state equals a training state).
+"""
+
+from __future__ import annotations
+
+import jax
+
+TRAIN, VALIDATION, TEST, LEARNER = 1, 2, 3, 4
+
+
+class Trials(tuple):
+    """``(starts_key, eval_key)`` of one set of trials."""
+
+    @property
+    def starts(self) -> jax.Array:
+        return self[0]
+
+    @property
+    def eval(self) -> jax.Array:
+        return self[1]
+
+
+def _stream(seed: int, stream: int) -> jax.Array:
+    return jax.random.fold_in(jax.random.key(seed), stream)
+
+
+def _trials(k: jax.Array) -> Trials:
+    return Trials((jax.random.fold_in(k, 0), jax.random.fold_in(k, 1)))
+
+
+def training(seed: int, generation: int) -> Trials:
+    """The keys of generation ``generation``'s training trials (every genome meets the same ones)."""
+    return _trials(jax.random.fold_in(_stream(seed, TRAIN), generation))
+
+
+def validation(seed: int) -> Trials:
+    """The keys of the run's validation trials (the same every generation)."""
+    return _trials(jax.random.fold_in(_stream(seed, VALIDATION), 0))
+
+
+def test(seed: int) -> Trials:
+    """The keys of the test trials of seed ``seed``: for final reports only, never for selection."""
+    return _trials(jax.random.fold_in(_stream(seed, TEST), 0))
+
+
+def learner_init(seed: int) -> jax.Array:
+    return jax.random.fold_in(_stream(seed, LEARNER), 0)
+
+
+def learner_step(seed: int, generation: int) -> jax.Array:
+    return jax.random.fold_in(jax.random.fold_in(_stream(seed, LEARNER), 1), generation)
