@@ -12,6 +12,8 @@ baseline is measured in the same run (these machines are shared and noisy).
   neat-python's first 20 runs against SPEC §2's anchor.
 * ``generation``: seconds per generation of ``python -m kx.train``'s default config, split into
   evaluation and evolution, with the share of executed simulator steps that were live.
+* ``learning``: the default config's validated champions over 10 seeds on 1000 test states, beside the
+  same budget of CMA-ES (evosax, optional ``bench`` extra) on a linear policy of the same layout.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -29,12 +31,13 @@ def _timed_eval(policy, policy_params, starts, params, config, repeats: int):
 
     from kx.sim import evaluate as ev
 
-    ev.evaluate(policy, policy_params, starts, params, config)  # compile every width once
+    key = jax.random.key(1)  # the kick noise (on by default)
+    ev.evaluate(policy, policy_params, starts, params, config, key=key)  # compile every width once
     best = None
     for _ in range(repeats):
         c = ev.EvalCounters()
         t0 = time.perf_counter()
-        stats = ev.evaluate(policy, policy_params, starts, params, config, counters=c)
+        stats = ev.evaluate(policy, policy_params, starts, params, config, counters=c, key=key)
         jax.block_until_ready(stats.fitness)
         dt = time.perf_counter() - t0
         if best is None or c.live_steps / dt > best[0].live_steps / best[1]:
@@ -44,7 +47,8 @@ def _timed_eval(policy, policy_params, starts, params, config, repeats: int):
 
 def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[float, int]:
     """Steps per second of the reference, on episodes from the same reset, holding unless a taker
-    is within 2 king moves and then passing to a random teammate (plain Python decisions)."""
+    is within 2 king moves and then passing to a random teammate (plain Python decisions), with the
+    kick noise of ``params`` drawn per iteration like the evaluator's."""
     import jax
     import numpy as np
 
@@ -53,6 +57,7 @@ def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[floa
 
     starts = env.as_numpy(env.reset_batch(jax.random.key(seed), 256, params, config))
     rng = np.random.default_rng(seed)
+    s_max = int(env.noise_limit(params.kick_noise_deg))
     steps, t0, i = 0, time.perf_counter(), 0
     while time.perf_counter() - t0 < seconds:
         s = ref.RefState.from_arrays({k: v[..., i % 256] for k, v in starts.items()})
@@ -61,7 +66,9 @@ def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[floa
             a = s.holder
             if s.holder >= 0 and min(ref.cheb(s.keepers[s.holder], t) for t in s.takers) <= 2:
                 a = int(rng.integers(0, config.n_keepers))
-            s = ref.step(s, a, 0, config, int(params.max_iterations))
+            noise = int(rng.integers(-s_max, s_max + 1)) if s_max else 0
+            s = ref.step(s, a, noise, config, int(params.max_iterations), int(params.taker_reaction_delay),
+                         int(params.tackle_iterations))
             steps += 1
     return steps / (time.perf_counter() - t0), steps
 
@@ -74,7 +81,8 @@ def bench_sim(args) -> None:
 
     config, params = KeepAwayConfig.from_task("3v2"), KeepAwayParams()
     print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; task {config.name}; "
-          f"{args.episodes} episodes; max_iterations {params.max_iterations}")
+          f"{args.episodes} episodes; max_iterations {params.max_iterations}, tackle_iterations "
+          f"{params.tackle_iterations}, kick noise {params.kick_noise_deg} degrees")
     starts = env.reset_batch(jax.random.key(args.seed), args.episodes, params, config)
 
     c, dt, stats = _timed_eval(policies.heuristic(config), None, starts, params, config, args.repeats)
@@ -118,7 +126,7 @@ def bench_neat_generation(args) -> None:
     neat = NEAT(ncfg, nparams)
     policy = neat_policy(config, ncfg)
     key = jax.random.key(args.seed)
-    k_start, k_init, k_loop = jax.random.split(key, 3)
+    k_start, k_init, k_loop, k_noise = jax.random.split(key, 4)
     starts = env.reset_batch(k_start, 30, params, config)
     state = neat.init(k_init)
     # Compile tell once on the initial population (timed separately).
@@ -132,7 +140,7 @@ def bench_neat_generation(args) -> None:
         t0 = time.perf_counter()
         nets = neat.networks(state.population)
         c = ev.EvalCounters()
-        stats = ev.evaluate(policy, nets, starts, params, config, counters=c)
+        stats = ev.evaluate(policy, nets, starts, params, config, counters=c, key=k_noise)
         fitness = stats.fitness.mean(axis=1)
         jax.block_until_ready(fitness)
         t_eval = time.perf_counter() - t0
@@ -340,15 +348,92 @@ def bench_generation(args) -> None:
     body = rows[args.skip:] or rows
     med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
     live = sum(r["live_steps"] for r in body) / sum(r["live_steps"] / max(r["live_fraction"], 1e-9) for r in body)
-    e, t, h, total = med("eval_seconds"), med("evolve_seconds"), med("heldout_seconds"), med("generation_seconds")
+    e, t, h, total = med("eval_seconds"), med("evolve_seconds"), med("validation_seconds"), med("generation_seconds")
     print(f"median over generations {min(args.skip, len(rows) - 1)}..{len(rows) - 1}: {total:.3f} s per generation "
-          f"= evaluation {e:.3f} s + evolution {t:.4f} s + the champion on {cfg.heldout_trials} held-out states "
+          f"= evaluation {e:.3f} s + evolution {t:.4f} s + the champion on {cfg.validation_trials} validation states "
           f"{h:.3f} s; live lane-steps {live:.1%} of those executed")
     print(f"generation: {total:.3f} s (ratio {t / e:.4f} vs evaluation)")
 
 
+LEARNING_TEST_SEED = 2026  # the test stream of this seed: the same 1000 test states for every run
+
+
+def bench_learning(args) -> None:
+    """The default config of ``python -m kx.train`` (NEAT, 3v2, 150 genomes x 20 generations of 30 shared
+    trials) over ``--seeds`` seeds, beside the same budget of CMA-ES (evosax, default parameters,
+    population 50, initial step size 1, mean starting at zero, 60 generations of 30 trials) on a linear
+    policy of the same 13/3 layout (:mod:`kx.evolve.cma_es`). Each NEAT run's champion is its validated
+    champion, each CMA-ES run's its final distribution mean; every champion and the hand-coded policies
+    play the same ``--test-trials`` test states (the test stream of seed 2026, which no run trains or
+    validates on) with the same kick noise."""
+    import jax
+    import numpy as np
+
+    from kx.evolve import cma_es, streams
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+    from kx.neat.network import build
+    from kx.sim import env
+    from kx.sim import evaluate as ev
+    from kx.sim.policies import BASELINES
+
+    seeds = list(range(args.seeds))
+    base = cfg_lib.load(None, ["gif=false"])
+    exp = cfg_lib.validate(base)
+    sim, params = exp.sim, exp.sim_params
+    keys = streams.test(LEARNING_TEST_SEED)
+    starts = env.reset_batch(keys.starts, args.test_trials, params, sim)
+    setup = cma_es.CMAESSetup()
+    print(f"learning: {sim.name}, default config ({base.method}, population {base.population_size}, "
+          f"{base.generations} generations, {base.trials} trials: {base.population_size * base.generations} "
+          f"evaluations) against CMA-ES (population {setup.population_size}, {setup.generations} generations, "
+          f"{setup.trials} trials: {setup.population_size * setup.generations} evaluations) on a linear "
+          f"13/3 policy; seeds {seeds[0]}..{seeds[-1]}; champions on {args.test_trials} test states", flush=True)
+    test = {}
+    for name, make in BASELINES.items():
+        test[name] = float(ev.evaluate(make(sim), None, starts, params, sim, key=keys.eval).fitness.mean())
+    print("hand-coded policies on the test states: " + ", ".join(f"{k} {v:.4f}" for k, v in test.items()))
+
+    neat, neat_time, curves = [], [], []
+    for seed in seeds:
+        t0 = time.perf_counter()
+        cfg = cfg_lib.load(None, ["gif=false", f"seed={seed}"])
+        trainer = run_lib.Trainer(cfg)
+        state, best, curve = trainer.init(), -np.inf, []
+        for g in range(cfg.generations):
+            res = trainer.step(g, state, best)
+            state, best = res.state, res.row["best_so_far"]
+            curve.append(res.row["best_validation"])
+        net = jax.tree.map(lambda a: a[None], build(state.champion, trainer.exp.neat))
+        f = float(ev.evaluate(trainer.policy, net, starts, params, sim, key=keys.eval).fitness.mean())
+        neat.append(f)
+        curves.append(curve)
+        neat_time.append(time.perf_counter() - t0)
+        print(f"NEAT seed {seed}: test {f:.4f} (validated champion of generation {int(state.champion_generation) + 1}, "
+              f"validation {float(state.champion_validation):.4f}; {neat_time[-1]:.0f} s)", flush=True)
+    cma, cma_time = [], []
+    for seed in seeds:
+        t0 = time.perf_counter()
+        mean, rows = cma_es.run(seed, sim, params, setup)
+        f = float(cma_es.fitness_on(mean, starts, keys.eval, sim, params).mean())
+        cma.append(f)
+        cma_time.append(time.perf_counter() - t0)
+        print(f"CMA-ES seed {seed}: test {f:.4f} (final step size {rows[-1]['sigma']:.2f}; {cma_time[-1]:.0f} s)",
+              flush=True)
+    curves = np.array(curves)
+    print("NEAT validated champion per generation, mean over seeds: "
+          + " ".join(f"{c:.3f}" for c in curves.mean(axis=0)))
+    for name, vals, secs in (("NEAT", neat, neat_time), ("CMA-ES", cma, cma_time)):
+        v = np.array(vals)
+        print(f"{name}: mean {v.mean():.4f} sd {v.std(ddof=1) if v.size > 1 else 0.0:.4f} "
+              f"({v.mean() / test['heuristic']:.1f}x the heuristic); per seed {' '.join(f'{x:.3f}' for x in v)}; "
+              f"{np.sum(secs):.0f} s in all (the first run includes compilation)")
+    ratio = float(np.mean(neat) / np.mean(cma))
+    print(f"learning: {np.mean(neat):.4f} fitness (ratio {ratio:.2f} vs cma_es)")
+
+
 BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
-           "generation": bench_generation}
+           "generation": bench_generation, "learning": bench_learning}
 
 
 def main(argv=None) -> None:
@@ -364,6 +449,8 @@ def main(argv=None) -> None:
     p.add_argument("--devices", type=int, default=0,
                    help="neat_xor: devices the runs are dealt out to (0: all; kx.runtime makes one per CPU core)")
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
+    p.add_argument("--seeds", type=int, default=10, help="learning: seeds 0..N-1 of each learner")
+    p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation: first generations left out (they compile)")
     args = p.parse_args(argv)

@@ -151,4 +151,31 @@ def mlp_policy(config: KeepAwayConfig, layout: str = "fixed") -> Policy:
     return Policy(f"mlp-{layout}", apply)
 
 
+@functools.lru_cache(maxsize=None)
+def linear_policy(config: KeepAwayConfig, layout: str = "fixed") -> Policy:
+    """A linear policy on the ``fixed`` or ``full`` layout: outputs ``x W + b``, the largest acts (ties
+    to hold). Params batch-last: ``w [in, out, *B]``, ``b [out, *B]``; :func:`linear_params` builds them
+    from flat vectors."""
+    obs_fn = {"fixed": observe.fixed_obs, "full": observe.full_obs}[layout]
+
+    def apply(params, state, key):
+        x = obs_fn(state, config)  # [in, *B]
+        out = params["b"]
+        for i in range(x.shape[0]):  # unrolled: a short contraction stays elementwise and fuses
+            out = out + x[i][None] * params["w"][i]
+        return observe.decode_ranked(out, state, config)
+
+    return Policy(f"linear-{layout}", apply)
+
+
+def linear_params(flat: jax.Array, config: KeepAwayConfig, layout: str = "fixed") -> dict:
+    """``[n, in * out + out]`` flat parameter vectors (weights row-major by input, then biases) as
+    :func:`linear_policy` parameters with a leading axis ``n``."""
+    n_in, n_out = observe.n_inputs(layout, config), observe.n_outputs(layout, config)
+    if flat.shape[-1] != n_in * n_out + n_out:
+        raise ValueError(f"linear_params: {flat.shape[-1]} values per policy, the {layout!r} layout of "
+                         f"{config.name} needs {n_in * n_out + n_out}")
+    return {"w": flat[:, : n_in * n_out].reshape(-1, n_in, n_out), "b": flat[:, n_in * n_out:]}
+
+
 BASELINES = {"hold": always_hold, "random": random_policy, "heuristic": heuristic}
