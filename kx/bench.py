@@ -101,9 +101,28 @@ def bench_sim(args) -> None:
           f"({c2.live_steps / max(c2.executed_steps, 1):.2f} live); mean fitness "
           f"{float(stats2.fitness.mean()):.4f}")
 
+    # The step alone: 400 lockstep iterations of 4096 lanes with no narrowing (finished lanes are
+    # stepped too), so that the per-call costs of the evaluator's ladder do not count.
+    import jax.numpy as jnp
+    import numpy as np
+
+    from kx.sim import evaluate as ev
+    lanes = jax.tree.map(lambda a: a[..., :4096], starts)
+    ids = jnp.arange(4096, dtype=jnp.int32)
+    lock = lambda: ev._advance(lanes, None, env.noise_words(jax.random.key(1), ids), ids, jax.random.key(1),  # noqa: E731
+                               params, np.int32(400), np.int32(-1), policy=policies.heuristic(config),
+                               config=config, n_dev=jax.local_device_count())
+    np.asarray(lock()[1])
+    t0 = time.perf_counter()
+    np.asarray(lock()[1])
+    lock_rate = 400 * 4096 / (time.perf_counter() - t0)
+    print(f"the step alone (heuristic, 4096 lanes in lockstep for 400 iterations, finished lanes included): "
+          f"{lock_rate:.0f} lane-steps/s")
+
     ref_rate, ref_steps = _reference_rate(config, params, args.reference_seconds, args.seed)
     print(f"reference (plain Python, one episode at a time): {ref_steps} steps = {ref_rate:.0f} steps/s")
     print(f"mlp: {nn_rate:.0f} live-steps/s (ratio {nn_rate / ref_rate:.1f} vs reference)")
+    print(f"step alone: {lock_rate:.0f} lane-steps/s (ratio {lock_rate / ref_rate:.1f} vs reference)")
     print(f"sim: {heur:.0f} live-steps/s (ratio {heur / ref_rate:.1f} vs reference)")
 
 
