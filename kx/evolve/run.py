@@ -314,7 +314,7 @@ def plot_progress(rows: list[dict], path: pathlib.Path, title: str, baselines: d
     ax.set_yscale("log")  # random play holds about 0.003, the heuristic about 0.02, a perfect team 1
     ax.set_ylabel("fitness (portion of max hold time, log scale)")
     ax.set_title(title)
-    ax.legend(loc="upper left")
+    ax.legend(loc="lower right", fontsize="small")
     ax.grid(alpha=0.3)
     ax2.plot(g, col("n_species"), color="C3")
     ax2.set_ylabel("species")
