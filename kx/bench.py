@@ -418,11 +418,8 @@ def bench_learning(args) -> None:
         t0 = time.perf_counter()
         cfg = cfg_lib.load(None, ["gif=false", f"seed={seed}"])
         trainer = run_lib.Trainer(cfg)
-        state, best, curve = trainer.init(), -np.inf, []
-        for g in range(cfg.generations):
-            res = trainer.step(g, state, best)
-            state, best = res.state, res.row["best_so_far"]
-            curve.append(res.row["best_validation"])
+        state, rows = run_lib.evolve_in_memory(trainer)
+        curve = [r["best_validation"] for r in rows]
         net = jax.tree.map(lambda a: a[None], build(state.champion, trainer.exp.neat))
         f = float(ev.evaluate(trainer.policy, net, starts, params, sim, key=keys.eval).fitness.mean())
         neat.append(f)

@@ -43,11 +43,8 @@ def main(argv=None) -> None:
         cfg = cfg_lib.load(args.config, [*args.set, f"seed={seed}"])
         trainer = run_lib.Trainer(cfg)
         bases.append(trainer.validation_baselines())
-        state, best, rows = trainer.init(), -np.inf, []
-        for g in range(cfg.generations):
-            res = trainer.step(g, state, best)
-            state, best = res.state, res.row["best_so_far"]
-            rows.append([res.row[k] for k in keys])
+        _, metrics = run_lib.evolve_in_memory(trainer)
+        rows = [[r[k] for k in keys] for r in metrics]
         curves.append(rows)
         c = np.asarray(rows)
         print(f"seed {seed}: validated champion {c[0, 2]:.4f} at generation 1, {c[-1, 2]:.4f} at the end; "

@@ -243,6 +243,17 @@ class Trainer:
         return GenerationResult(row=row, state=state)
 
 
+def evolve_in_memory(trainer: Trainer) -> tuple[RunState, list[dict]]:
+    """All of ``trainer``'s generations with no run directory: the final run state (its validated
+    champion included) and the metrics row of every generation, as :func:`train` would write them."""
+    state, best, rows = trainer.init(), -np.inf, []
+    for g in range(trainer.cfg.generations):
+        res = trainer.step(g, state, best)
+        state, best = res.state, res.row["best_so_far"]
+        rows.append(res.row)
+    return state, rows
+
+
 def _fmt_seconds(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
 
