@@ -143,8 +143,10 @@ def _compact(state: State, lane_params: Any, noise_word, lane_id, *, width: int,
 # A call returns to the host (to narrow the batch) only once the live lanes fit a width at most this
 # share of the current one: every return costs a host sync, a record and a compaction (about 1-2 ms on
 # 2 CPU devices), which a batch of short episodes cannot afford at every rung of the ladder. Measured on
-# 4500 heuristic episodes of 3v2 (docs/benchmarks.md): 1.0 (every rung) 6.3M live-steps/s with today's
-# rules, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M; with the first rules (long episodes) 15.9M, 16.0M, 14.9M, 13.6M.
+# 4500 heuristic episodes of 3v2 with a one-off development script (`python -m kx.bench sim` with this
+# value changed reproduces the first figure of each pair): 1.0 (every rung) 6.3M live-steps/s with
+# today's rules, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M; with the first rules (long episodes) 15.9M, 16.0M,
+# 14.9M, 13.6M.
 SHRINK = 0.8
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum")
