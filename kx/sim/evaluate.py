@@ -93,6 +93,16 @@ def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_i
     return state, jnp.stack([steps, jnp.sum(~state.done, dtype=jnp.int32)])[None]
 
 
+def _mesh(n_dev: int) -> jax.sharding.Mesh:
+    """The first ``n_dev`` devices, the lanes split over them."""
+    return jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
+
+
+def _lane_specs(tree):
+    """Lanes (the last axis of every leaf) split over the mesh."""
+    return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
+
+
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"))
 def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, *, policy, config, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
@@ -102,23 +112,17 @@ def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_a
     local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
         return local(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at)
-    mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
-    lanes = jax.sharding.PartitionSpec(*([None] * 0), "lanes")
-
-    def spec(tree):
-        return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
-
+    mesh = _mesh(n_dev)
+    lanes = jax.sharding.PartitionSpec("lanes")
     rep = jax.sharding.PartitionSpec()
-    in_specs = (spec(state), spec(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params), rep,
-                rep)
-    out_specs = (spec(state), jax.sharding.PartitionSpec("lanes", None))
+    in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params),
+                rep, rep)
+    out_specs = (_lane_specs(state), jax.sharding.PartitionSpec("lanes", None))
     # each device stops once its own live lanes fit its share of the narrower width
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
         state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev)
 
 
-def _lane_specs(tree):
-    return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
 
 
 @functools.partial(jax.jit, static_argnames=("width", "n_dev"))
@@ -134,7 +138,7 @@ def _compact(state: State, lane_params: Any, noise_word, lane_id, *, width: int,
 
     if n_dev == 1:
         return local(state, lane_params, noise_word, lane_id)
-    mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
+    mesh = _mesh(n_dev)
     args = (state, lane_params, noise_word, lane_id)
     return jax.shard_map(local, mesh=mesh, in_specs=_lane_specs(args), out_specs=_lane_specs(args),
                          check_vma=False)(*args)
@@ -211,7 +215,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
                                policy_params)
     if n_dev > 1:  # split the lanes once; in any other layout every sharded call would reshard them
-        mesh = jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
+        mesh = _mesh(n_dev)
         lanes = (state, lane_params, noise_word, lane_id)
         state, lane_params, noise_word, lane_id = jax.device_put(
             lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
