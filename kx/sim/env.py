@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from kx.sim import geometry as geo
+from kx.sim.ops import any0, argmin0, col, fenced, pick  # noqa: F401 (also kx.sim.env's names)
 from kx.sim.types import (
     DIST_SCALE,
     MAX_NOISE_FIELD,
@@ -98,54 +99,6 @@ def kick_noise(word: jax.Array, t: jax.Array, s_max: jax.Array) -> jax.Array:
     return ((h >> 16) * n >> 16).astype(jnp.int32) - s_max
 
 
-def fenced(fn, *args):
-    """``fn(*args)`` behind a fusion boundary: its results are computed once and stored.
-
-    XLA CPU fuses elementwise producers into every consumer, so a large computation with two consumers
-    (an x and a y) is emitted, and executed, twice. A conditional cannot be fused across; its
-    predicate is always true but read at run time so that it cannot be folded away. (Under ``vmap``
-    the predicate is batched, the conditional becomes a select, and only speed is lost.)
-    """
-    leaf = jax.tree.leaves(args)[0]
-    pred = jnp.ravel(leaf)[0] > jnp.iinfo(jnp.int32).min
-    shapes = jax.eval_shape(fn, *args)
-    never = lambda *_: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)  # noqa: E731
-    return jax.lax.cond(pred, fn, never, *args)
-
-
-def _col(n: int, batch_ndim: int) -> jax.Array:
-    """``arange(n)`` shaped ``[n, 1, ..., 1]`` to broadcast against ``[n, *B]``."""
-    return jnp.arange(n, dtype=jnp.int32).reshape((n,) + (1,) * batch_ndim)
-
-
-def pick(values: jax.Array, index: jax.Array) -> jax.Array:
-    """``values[index]`` along axis 0 for batch-last ``values [n, *B]`` and ``index [*B]``.
-
-    An unrolled select, not a gather or a reduction: for a handful of agents it stays elementwise and
-    fuses into the surrounding loop.
-    """
-    out = values[0]
-    for i in range(1, values.shape[0]):
-        out = jnp.where(index == i, values[i], out)
-    return out
-
-
-def argmin0(values: jax.Array) -> jax.Array:
-    """First index of the minimum along a short axis 0, unrolled (elementwise only)."""
-    best, arg = values[0], jnp.zeros(values.shape[1:], jnp.int32)
-    for i in range(1, values.shape[0]):
-        better = values[i] < best
-        best, arg = jnp.where(better, values[i], best), jnp.where(better, i, arg)
-    return arg
-
-
-def any0(values: jax.Array) -> jax.Array:
-    out = values[0]
-    for i in range(1, values.shape[0]):
-        out = out | values[i]
-    return out
-
-
 # --------------------------------------------------------------------------------------------- reset
 
 
@@ -199,7 +152,7 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
     """:func:`step` with the kick noise given: a pass is rotated by ``atan(noise / 16)``."""
     nk = config.n_keepers
     bnd = state.holder.ndim
-    kid = _col(nk, bnd)
+    kid = col(nk, bnd)
     alive = ~state.done
     kx, ky, tx, ty = state.keeper_x, state.keeper_y, state.taker_x, state.taker_y
 
@@ -301,7 +254,7 @@ def _flight(in_air, holder, reason, bx, by, hold_x, hold_y, origin_x, origin_y, 
     the ball's cell (18 bits, :func:`geo.pack`), the reason (3 bits), whether a keeper caught it (1),
     the holder + 1 (4) and the sub-steps advanced (4)."""
     w = config.field_size
-    kid = _col(config.n_keepers, holder.ndim)
+    kid = col(config.n_keepers, holder.ndim)
     ball_x, ball_y = jnp.where(holder >= 0, hold_x, bx), jnp.where(holder >= 0, hold_y, by)
     caught = jnp.zeros_like(holder)
     advanced = jnp.zeros_like(holder)
@@ -336,7 +289,7 @@ def _keepers_move(kx, ky, tx, ty, ref_x, ref_y, flying, interceptor, holder, tgt
     """The keepers' new cells, packed (:func:`geo.pack`): the holder stays, the interceptor runs to
     its cell, the rest get open; finished episodes stay put."""
     spd = config.agent_speed
-    kid = _col(config.n_keepers, holder.ndim)
+    kid = col(config.n_keepers, holder.ndim)
     ox, oy = kx, ky
     for _ in range(spd):
         ox, oy = _get_open(ox, oy, kx, ky, tx, ty, ref_x, ref_y, jnp.where(flying, interceptor, holder),
@@ -383,13 +336,13 @@ def _get_open(kx, ky, snap_kx, snap_ky, tx, ty, ref_x, ref_y, skip, config: Keep
     holder, or the interceptor while a pass flies), whose move is decided elsewhere."""
     nk = config.n_keepers
     bnd = kx.ndim - 1
-    rows = _col(nk - 1, bnd)
+    rows = col(nk - 1, bnd)
     idx = rows + (rows >= skip).astype(jnp.int32)  # [K-1, *B] keeper index of each row
     rx = jnp.stack([pick(kx, idx[r]) for r in range(nk - 1)])
     ry = jnp.stack([pick(ky, idx[r]) for r in range(nk - 1)])
     best_m = fenced(functools.partial(_get_open_move, config=config), rx, ry, idx, snap_kx, snap_ky, tx, ty,
                     ref_x, ref_y)
-    kid = _col(nk, bnd)
+    kid = col(nk, bnd)
     own = pick(best_m, jnp.clip(kid - (kid > skip).astype(jnp.int32), 0, nk - 2))  # [K, *B]
     own = jnp.where(kid == skip, 0, own)
     mx, my = jnp.zeros_like(kx), jnp.zeros_like(ky)
@@ -462,7 +415,7 @@ def _takers_move(tx, ty, kx, ky, holder, flying, ball_x, ball_y, interceptor, tg
     ``cut_code, cut_key [T, *B]`` are the takers' interception plans for the pass in flight."""
     nk, nt, spd = config.n_keepers, config.n_takers, config.agent_speed
     bnd = tx.ndim - 1
-    tid, kid = _col(nt, bnd), _col(nk, bnd)
+    tid, kid = col(nt, bnd), col(nk, bnd)
     d_ball = geo.cheb(tx, ty, ball_x, ball_y)  # [T, *B]
     # rank by (distance, index): the chasers are ranks 0 .. n_chasers-1.
     rank = jnp.zeros_like(d_ball)

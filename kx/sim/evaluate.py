@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx.sim import env
+from kx.sim import env, ops
 from kx.sim.policies import Policy
 from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
 
@@ -76,7 +76,7 @@ def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_i
 
     def one(state):
         pkeys = _lane_keys(policy_key, lane_id, state.t) if policy.stochastic else None
-        action = env.fenced(policy.apply, lane_params, state, pkeys)
+        action = ops.fenced(policy.apply, lane_params, state, pkeys)
         noise = env.kick_noise(noise_word, state.t, s_max)
         return env.transition(state, action, noise, params, config)
 
@@ -280,7 +280,7 @@ def _rollout(policy, policy_params, start, key, params, trial, *, config, n_step
 
     def body(state, _):
         pkeys = _lane_keys(policy_key, lane, state.t) if policy.stochastic else None
-        action = env.fenced(policy.apply, lp, state, pkeys)
+        action = ops.fenced(policy.apply, lp, state, pkeys)
         noise = env.kick_noise(word, state.t, s_max)
         nxt = env.transition(state, action, noise, params, config)
         return nxt, (nxt, action)

@@ -20,7 +20,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from kx.sim.env import _col, pick
+from kx.sim.ops import col, pick
 from kx.sim.types import KeepAwayConfig, State
 
 FIXED_INPUTS, FIXED_OUTPUTS = 13, 3
@@ -49,7 +49,7 @@ def teammate_order(state: State, config: KeepAwayConfig) -> jax.Array:
     kx, ky = state.keeper_x, state.keeper_y
     hx, hy = pick(kx, h), pick(ky, h)
     d2 = (kx - hx) ** 2 + (ky - hy) ** 2
-    d2 = jnp.where(_col(config.n_keepers, h.ndim) == h, -1, d2)
+    d2 = jnp.where(col(config.n_keepers, h.ndim) == h, -1, d2)
     return _argsort_small(d2)
 
 
@@ -64,7 +64,7 @@ def taker_order(state: State, config: KeepAwayConfig) -> jax.Array:
 def _argsort_small(v: jax.Array) -> jax.Array:
     """Stable argsort along axis 0 of a short axis, by counting (no sort op on the batch)."""
     n = v.shape[0]
-    idx = _col(n, v.ndim - 1)
+    idx = col(n, v.ndim - 1)
     rank = jnp.zeros_like(v, dtype=jnp.int32)
     for m in range(n):
         rank = rank + ((v[m] < v) | ((v[m] == v) & (m < idx))).astype(jnp.int32)
@@ -180,7 +180,7 @@ def decode_bev(outputs: jax.Array, state: State, config: KeepAwayConfig, literal
         best = jnp.argmax(outputs, axis=0).astype(jnp.int32)
         bx, by = best % w, best // w
         d2 = (state.keeper_x - bx) ** 2 + (state.keeper_y - by) ** 2
-        d2 = jnp.where(_col(config.n_keepers, h.ndim) == h, 2 * d2 - 1, 2 * d2)  # holder wins ties
+        d2 = jnp.where(col(config.n_keepers, h.ndim) == h, 2 * d2 - 1, 2 * d2)  # holder wins ties
         return jnp.argmin(d2, axis=0).astype(jnp.int32)
     vals = jnp.take_along_axis(outputs, kc, axis=0)  # [K, *B]
     best_v, best_i = pick(vals, h), h

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from kx.sim import geometry as geo
 from kx.sim import observe
-from kx.sim.env import _col, pick
+from kx.sim.ops import col, pick
 from kx.sim.types import KeepAwayConfig, State
 
 PolicyApply = Callable[[Any, State, jax.Array], jax.Array]
@@ -75,7 +75,7 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
             pressed = pressed | (d_near[j] <= threshold)
         # Only the K-1 teammates (rows in keeper order, skipping the holder): a pass to oneself is
         # no pass.
-        rows = _col(config.n_keepers - 1, h.ndim)
+        rows = col(config.n_keepers - 1, h.ndim)
         idx = rows + (rows >= h).astype(jnp.int32)  # [K-1, *B] keeper index of each row
         mx = jnp.stack([pick(kx, idx[r]) for r in range(config.n_keepers - 1)])
         my = jnp.stack([pick(ky, idx[r]) for r in range(config.n_keepers - 1)])
