@@ -11,7 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from kx.neat import algorithm as alg
+from kx.neat import checks as ck
 from kx.neat import genome as gn
+from kx.neat import innovation as inn
 from kx.neat import network as nw
 from kx.neat import presets, xor
 from kx.neat.types import HIDDEN, NEATConfig, NEATError, NEATParams
@@ -66,7 +68,7 @@ def test_thousands_of_mutations_and_crossovers_keep_every_genome_valid():
     states, metrics = wild_run()
     # 120 generations x 24 offspring = 2880 offspring, most of them crossed and mutated.
     for state in states[::10] + [states[-1]]:
-        assert gn.check_population(state.population, CFG, WILD.weight_range) == []
+        assert ck.check_population(state.population, CFG, WILD.weight_range) == []
     final = states[-1].population
     assert int(jnp.max(jnp.sum(final.node_kind == HIDDEN, axis=1))) == CFG.n_hidden  # capacity reached
     assert sum(int(m["node_overflow"]) for m in metrics) > 0  # ... and overflow was counted, not written
@@ -76,7 +78,7 @@ def test_thousands_of_mutations_and_crossovers_keep_every_genome_valid():
 def test_cppn_genomes_stay_valid_and_carry_activations():
     states, _ = wild_run(CPPN, 60)
     pop = states[-1].population
-    assert gn.check_population(pop, CPPN, WILD.weight_range) == []
+    assert ck.check_population(pop, CPPN, WILD.weight_range) == []
     acts = np.asarray(pop.node_act)[np.asarray(pop.node_kind) == HIDDEN]
     assert len(set(acts.tolist())) >= 4
 
@@ -95,7 +97,7 @@ def test_crossover_with_itself_is_identity_and_distance_is_a_semimetric(seed, i,
     c = gn.crossover(key, a, b, WILD)
     for f in ("node_id", "node_kind", "conn_innov", "conn_src", "conn_dst", "conn_valid"):
         np.testing.assert_array_equal(getattr(c, f), getattr(a, f))
-    assert gn.check_genome(c, CFG, WILD.weight_range) == []
+    assert ck.check_genome(c, CFG, WILD.weight_range) == []
 
 
 @settings(max_examples=20, deadline=None)
@@ -147,7 +149,7 @@ def _hand_genome():
         conn_weight=jnp.asarray([3.0, 0.5, 0.25, 0, 0, 0, 2.0, -1.0, 0, 0], jnp.float32),
         conn_enabled=jnp.asarray([False, True, True] + [False] * 3 + [True, True, False, False]),
         conn_valid=jnp.asarray([True, True, True] + [False] * 3 + [True, True, False, False]))
-    assert gn.check_genome(g, config) == []
+    assert ck.check_genome(g, config) == []
     return g, config
 
 
@@ -191,18 +193,18 @@ def test_structural_mutations_keep_the_hidden_slots_in_topological_order():
         i32(col + 1), params, config)
     g = add(1, gn.ADD_NODE, 0, -1, 4, 3)  # 0 -> 4 -> 3 in columns 3, 4
     g = add(2, gn.ADD_NODE, 1, -1, 5, 5)  # 1 -> 5 -> 3 in columns 5, 6
-    assert hidden(g) == [4, 5, -1, -1] and gn.check_genome(g, config) == []
+    assert hidden(g) == [4, 5, -1, -1] and ck.check_genome(g, config) == []
     g = add(3, gn.ADD_LINK, 5, 4, -1, 7)  # 5 -> 4 in column 7
-    assert hidden(g) == [5, 4, -1, -1] and gn.check_genome(g, config) == []
+    assert hidden(g) == [5, 4, -1, -1] and ck.check_genome(g, config) == []
     g = add(4, gn.ADD_NODE, 7, -1, 6, 8)  # 5 -> 6 -> 4 in columns 8, 9
-    assert hidden(g) == [5, 6, 4, -1] and gn.check_genome(g, config) == []
+    assert hidden(g) == [5, 6, 4, -1] and ck.check_genome(g, config) == []
     x = np.array([[0.3, -0.7], [1.5, 0.2]], np.float32)
     out = np.asarray(nw.activate(nw.build(g, config), jnp.asarray(x), config))
     np.testing.assert_allclose(out, [nw.reference_activate(g, xi, config) for xi in x], rtol=1e-6)
     # The check itself: the same genome with nodes 5 and 4 swapped back is refused.
     swap = jnp.array([0, 1, 2, 3, 6, 5, 4, 7])
     bad = g.replace(node_id=g.node_id[swap], node_act=g.node_act[swap])
-    assert any("later hidden slot" in e for e in gn.check_genome(bad, config))
+    assert any("later hidden slot" in e for e in ck.check_genome(bad, config))
 
 
 def test_same_structural_mutation_in_one_generation_gets_one_number():
@@ -212,7 +214,7 @@ def test_same_structural_mutation_in_one_generation_gets_one_number():
     key2 = i32([-1, 9, -1, 9, -1, 9, -1])
     split_innov = i32([30, 0, 30, 0, 0, 0, 31])
     used = jnp.zeros((16,), bool).at[:4].set(True)
-    out = gn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
+    out = inn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
     new_kind, node_id, ia, ib, ca, cb, nn, ni, n_nodes, n_links, dropped = [np.asarray(o) for o in out]
     assert node_id[0] == node_id[2] != node_id[6]
     assert ia[0] == ia[2] and ib[0] == ib[2] and ia[0] != ia[6]
@@ -225,7 +227,7 @@ def test_same_structural_mutation_in_one_generation_gets_one_number():
     # With only 3 free columns: the first split fits (2 columns); the second split (columns 3 and 4 in
     # rank order) and both new links (ranks 5, 6: after every split) do not, and are dropped.
     used = jnp.ones((16,), bool).at[10:13].set(False)
-    out = gn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
+    out = inn.assign_innovations(kind, key1, key2, split_innov, used, i32(100), i32(500))
     new_kind, node_id, ia, ib, ca, cb, nn, ni, n_nodes, n_links, dropped = [np.asarray(o) for o in out]
     assert list(new_kind) == [1, 0, 1, 0, 0, 0, 0]
     assert (int(nn), int(ni), int(n_nodes), int(n_links), int(dropped)) == (101, 502, 1, 0, 4)
@@ -374,7 +376,7 @@ def _xor_network(a):
         conn_innov=i32(list(range(9)) + [-1]), conn_src=i32(src + [-1]), conn_dst=i32(dst + [-1]),
         conn_weight=jnp.asarray(w + [0.0], jnp.float32), conn_enabled=jnp.arange(10) < 9,
         conn_valid=jnp.arange(10) < 9)
-    assert gn.check_genome(g, config) == []
+    assert ck.check_genome(g, config) == []
     return g, config
 
 
@@ -447,7 +449,7 @@ def test_negative_and_non_finite_fitness_are_handled():
     s1, m = _tell(CFG)(jax.random.key(1), state.population, fit, state, WILD)
     assert int(m["offspring"].sum()) == 24
     assert np.isfinite(float(m["mean_fitness"]))
-    assert gn.check_population(s1.population, CFG, WILD.weight_range) == []
+    assert ck.check_population(s1.population, CFG, WILD.weight_range) == []
     # The best finite genome (index 0, fitness -10) is the champion; inf counts as the worst finite.
     assert float(s1.best_fitness) == -10.0
 
@@ -471,16 +473,16 @@ def test_a_structural_mutation_without_a_free_column_is_counted_by_its_kind():
                             jnp.int32(8), jnp.int32(9), jnp.int32(8), jnp.int32(9), params, config)
     pop = jax.tree.map(lambda a, b: jnp.stack([a, b]), g0, g)
     frozen = jnp.array([True, False])
-    new, _, next_innov, counters = gn.mutate_population(jax.random.key(2), pop, frozen, jnp.int32(7),
+    new, _, next_innov, counters = inn.mutate_population(jax.random.key(2), pop, frozen, jnp.int32(7),
                                                         jnp.int32(10), params, config)
     assert (int(counters.node_overflow), int(counters.link_overflow), int(next_innov)) == (1, 0, 10)
     chex.assert_trees_all_equal(one(new, 1).conn_valid, g.conn_valid)
-    assert gn.check_population(new, config) == []
+    assert ck.check_population(new, config) == []
 
 
 def test_a_config_without_hidden_slots_evolves_links_only():
     config = NEATConfig(n_inputs=2, n_outputs=2, population_size=10, max_nodes=5, max_conns=12, species_capacity=3)
     params = NEATParams(target_species=2, add_link_prob=0.5, add_node_prob=0.5)
     states, metrics = evolve(config, params, 4)
-    assert gn.check_population(states[-1].population, config) == []
+    assert ck.check_population(states[-1].population, config) == []
     assert sum(int(m["node_overflow"]) for m in metrics) > 0  # every add node is skipped and counted

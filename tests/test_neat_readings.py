@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 from test_neat import CFG, evolve
 
+from kx.neat import checks as ck
 from kx.neat import genome as gn
 from kx.neat import presets
 from kx.neat.types import NEATParams
@@ -28,7 +29,7 @@ def test_initial_link_fraction():
     # each of the 8 links with p = 0.05, and one more when none was drawn (p = 0.95^8 = 0.66)
     np.testing.assert_allclose(n.mean(), 8 * 0.05 + 0.95 ** 8, atol=0.05)
     for i in range(0, 2000, 97):
-        assert gn.check_genome(jax.tree.map(lambda a: a[i], part), CFG) == []
+        assert ck.check_genome(jax.tree.map(lambda a: a[i], part), CFG) == []
     # a present link keeps its innovation number and column s * n_outputs + o
     cols = np.flatnonzero(np.asarray(part.conn_valid[3]))
     assert np.array_equal(np.asarray(part.conn_innov[3])[cols], cols)
@@ -40,7 +41,7 @@ def test_delete_link_clears_the_column_and_never_takes_the_last_gene():
                              jnp.int32(-1), jnp.int32(-1), jnp.int32(-1), jnp.int32(-1), NEATParams(), CFG)
     o = jax.tree.map(np.asarray, out)
     assert not o.conn_valid[5] and o.conn_innov[5] == -1 and o.conn_src[5] == -1 and o.conn_weight[5] == 0
-    assert o.conn_valid.sum() == CFG.n_initial_conns - 1 and gn.check_genome(out, CFG) == []
+    assert o.conn_valid.sum() == CFG.n_initial_conns - 1 and ck.check_genome(out, CFG) == []
     keep = np.asarray(g.conn_valid).copy()
     assert np.array_equal(np.delete(o.conn_weight, 5), np.delete(np.asarray(g.conn_weight), 5))
     # a genome with one gene left draws delete link but keeps it
@@ -92,7 +93,7 @@ def _sharp_run():
 def test_sharpneat_operators_keep_every_genome_valid():
     states, metrics = _sharp_run()
     for s in states[::8] + [states[-1]]:
-        assert gn.check_population(s.population, CFG, weight_range=5.0) == []
+        assert ck.check_population(s.population, CFG, weight_range=5.0) == []
     n = np.stack([np.asarray(s.population.conn_valid).sum(axis=1) for s in states])
     assert n[0].mean() < 0.5 * CFG.n_initial_conns  # the partial start
     # genes are deleted as well as added: some genome lost a gene between two generations

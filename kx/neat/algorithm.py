@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 
 from kx.neat import genome as gn
+from kx.neat import innovation as inn
 from kx.neat.network import Network, build
 from kx.neat.types import HIDDEN, Genome, NEATConfig, NEATError, NEATParams, NEATState
 
@@ -190,7 +191,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
     base_idx = jnp.where(elite, order[mem_start[child_sp]], p1)
     base = jax.tree.map(lambda a, c: jnp.where((elite | mut_only).reshape((p,) + (1,) * (a.ndim - 1)), a, c),
                         _take(population, base_idx), crossed)
-    children, next_node, next_innov, counters = gn.mutate_population(
+    children, next_node, next_innov, counters = inn.mutate_population(
         k_mut, base, elite, state.next_node_id, state.next_innov, params, config)
 
     # Speciate the offspring against a random member of each species that reproduced.

@@ -5,22 +5,26 @@ vmapped over the population by the caller. Structural mutation is split in two s
 structural innovation arising in several genomes of one generation gets one innovation number:
 
 1. :func:`propose_structure` (per genome) picks the link to split or the link to add;
-2. :func:`assign_innovations` (over the population) numbers the distinct proposals;
+2. :func:`kx.neat.innovation.assign_innovations` (over the population) numbers the distinct proposals;
 3. :func:`apply_structure` (per genome) writes the genes with those numbers.
+
+The population-level steps (:func:`~kx.neat.innovation.pick_links`, ``assign_innovations`` and
+:func:`~kx.neat.innovation.mutate_population`, the mutation step of a generation) live in
+:mod:`kx.neat.innovation`; the host-side validity checks in :mod:`kx.neat.checks`.
 
 Connection genes live in *columns*: within a population, a column holds one innovation number, and a
 new innovation is given a column that no genome of the generation uses (see :mod:`kx.neat.types`), so
 that aligning two genomes by innovation number is a comparison column by column. A mutation that needs
 a node slot or a column when none is left is skipped and counted.
 
-Every operator keeps the invariants checked by :func:`check_genome`: innovation numbers are unique
-within a genome, hidden nodes are a prefix, every link leaves an input, the bias or a hidden node and
-enters a hidden or output node, no two links join the same pair, and the graph of all links (enabled
-or not, so that re-enabling never closes a cycle) is acyclic. More than acyclic: the hidden slots are
-in topological order (a link between hidden nodes goes from a lower slot to a higher one), so that
-:func:`kx.neat.network.build` needs no sort. Add node inserts its node just before the split link's
-target; add link, when its source sits after its target, moves the target and what it reaches past
-the source (the stable partition of an incremental topological sort, as in Pearce and Kelly 2006).
+Every operator keeps the invariants checked by :func:`kx.neat.checks.check_genome`: innovation numbers
+are unique within a genome, hidden nodes are a prefix, every link leaves an input, the bias or a hidden
+node and enters a hidden or output node, no two links join the same pair, and the graph of all links
+(enabled or not, so that re-enabling never closes a cycle) is acyclic. More than acyclic: the hidden
+slots are in topological order (a link between hidden nodes goes from a lower slot to a higher one), so
+that :func:`kx.neat.network.build` needs no sort. Add node inserts its node just before the split
+link's target; add link, when its source sits after its target, moves the target and what it reaches
+past the source (the stable partition of an incremental topological sort, as in Pearce and Kelly 2006).
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Counters, Genome, NEATConfig, NEATParams
+from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Genome, NEATConfig, NEATParams
 
 I32 = jnp.int32
 
@@ -241,7 +245,7 @@ def mutate_weights_stanley(key: jax.Array, g: Genome, params: NEATParams, genes:
     return g.replace(conn_weight=jnp.where(g.conn_valid, w, 0.0))
 
 
-def _pick(key: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
+def pick_where(key: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
     """A uniformly random index where ``mask`` (flattened) is true, and whether there is one: the r-th
     true entry for one uniform r (one random word, not one per entry)."""
     flat = mask.reshape(-1)
@@ -254,14 +258,14 @@ def _pick(key: jax.Array, mask: jax.Array) -> tuple[jax.Array, jax.Array]:
 def mutate_reenable(key: jax.Array, g: Genome) -> Genome:
     """Re-enable one disabled connection gene chosen at random (if any): safe, since the graph of
     all links, disabled ones included, is kept acyclic."""
-    i, ok = _pick(key, g.conn_valid & ~g.conn_enabled)
+    i, ok = pick_where(key, g.conn_valid & ~g.conn_enabled)
     return g.replace(conn_enabled=g.conn_enabled.at[i].set(g.conn_enabled[i] | ok))
 
 
 def mutate_activation(key: jax.Array, g: Genome, config: NEATConfig) -> Genome:
     """Redraw the activation of one hidden node at random from ``activation_options``."""
     k_i, k_a = jax.random.split(key)
-    i, ok = _pick(k_i, g.node_kind == HIDDEN)
+    i, ok = pick_where(k_i, g.node_kind == HIDDEN)
     a = jax.random.randint(k_a, (), 0, len(config.activation_options), I32)
     return g.replace(node_act=g.node_act.at[i].set(jnp.where(ok, a, g.node_act[i])))
 
@@ -348,10 +352,10 @@ def hidden_reach(lk: Links, config: NEATConfig, enabled_only: bool = False) -> j
 def link_candidates(g: Genome, config: NEATConfig, lk: Links | None = None) -> jax.Array:
     """``[max_nodes, max_nodes]`` mask of (source slot, target slot) pairs a new link may join: from an
     input, the bias or a hidden node to a hidden or output node, not yet linked, closing no cycle."""
-    return _candidates_and_reach(g, config, lk)[0]
+    return candidates_and_reach(g, config, lk)[0]
 
 
-def _candidates_and_reach(g: Genome, config: NEATConfig, lk: Links | None = None):
+def candidates_and_reach(g: Genome, config: NEATConfig, lk: Links | None = None):
     """:func:`link_candidates` and the :func:`hidden_reach` (all links) it was computed from."""
     lk = links(g, config) if lk is None else lk
     kind = g.node_kind
@@ -393,7 +397,7 @@ def link_order(reach: jax.Array, src_slot: jax.Array, dst_slot: jax.Array, confi
     return jnp.concatenate([jnp.arange(f, dtype=I32), f + perm])
 
 
-def _structure_draw(key: jax.Array, params: NEATParams):
+def structure_draw(key: jax.Array, params: NEATParams):
     """One roulette draw: add node, add link, delete link or none; ``k_split`` also picks the gene a
     delete removes (the two never happen together)."""
     k_u, k_split, k_link = jax.random.split(key, 3)
@@ -413,15 +417,15 @@ def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEA
     skipped for lack of a hidden slot or of gene room (``max_genes``); ``link_exhausted``: no new
     feed-forward link is left to add. ``link_pick``, if given, is the ``(pair, has_pair)`` already
     drawn for this genome by :func:`pick_links`."""
-    want_node, want_link, want_delete, k_split, k_link = _structure_draw(key, params)
-    split, has_split = _pick(k_split, g.conn_enabled)
+    want_node, want_link, want_delete, k_split, k_link = structure_draw(key, params)
+    split, has_split = pick_where(k_split, g.conn_enabled)
     genes = n_conns(g)
     node_room = (n_hidden(g) < config.n_hidden) & (genes + 2 <= config.genes)
     do_node = want_node & has_split & node_room
-    pair, has_pair = _pick(k_link, link_candidates(g, config)) if link_pick is None else link_pick[:2]
+    pair, has_pair = pick_where(k_link, link_candidates(g, config)) if link_pick is None else link_pick[:2]
     link_room = genes + 1 <= config.genes
     do_link = want_link & has_pair & link_room
-    gone, _ = _pick(k_split, g.conn_valid)
+    gone, _ = pick_where(k_split, g.conn_valid)
     do_delete = want_delete & (genes >= 2)
     n = config.max_nodes
     kind = jnp.where(do_node, ADD_NODE, jnp.where(do_link, ADD_LINK, jnp.where(do_delete, DELETE_LINK, NONE)))
@@ -431,78 +435,6 @@ def propose_structure(key: jax.Array, g: Genome, params: NEATParams, config: NEA
     key2 = jnp.where(do_link, g.node_id[pair % n], -1).astype(I32)
     return kind, key1, key2, (want_node & has_split & ~node_room, want_link & has_pair & ~link_room,
                               want_link & ~has_pair)
-
-
-def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATParams, config: NEATConfig):
-    """The new link of every genome that draws add-link (``[P]`` keys as given to
-    :func:`propose_structure`), computing candidate links only for those genomes: at most
-    ``max(8, P // 8)`` of them (about 5% draw it); any beyond are skipped and returned as overflow.
-    Returns ``((pair, has_pair, order), overflow)``: ``[P]`` each but ``order`` ``[P, max_nodes]``, the
-    :func:`link_order` that adding the picked link needs (the identity for the others)."""
-    p = frozen.shape[0]
-    m = min(p, max(8, p // 8))
-    _, want, _, _, k_link = jax.vmap(lambda k: _structure_draw(k, params))(keys)
-    want = want & ~frozen
-    idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
-    sel = jnp.minimum(idx, p - 1)
-    n = config.max_nodes
-
-    def pick_one(k, g):
-        cand, reach = _candidates_and_reach(g, config)
-        pair, has = _pick(k, cand)
-        return pair, has, link_order(reach, pair // n, pair % n, config)
-
-    pair, has, order = jax.vmap(pick_one)(k_link[sel], jax.tree.map(lambda x: x[sel], pop))
-    pair_all = jnp.zeros((p,), I32).at[idx].set(pair, mode="drop")
-    has_all = jnp.zeros((p,), bool).at[idx].set(has & (idx < p), mode="drop")
-    order_all = jnp.broadcast_to(jnp.arange(n, dtype=I32), (p, n)).at[idx].set(order, mode="drop")
-    chosen = jnp.zeros((p,), bool).at[idx].set(True, mode="drop")
-    return (pair_all, has_all, order_all), want & ~chosen
-
-
-def assign_innovations(kind: jax.Array, key1: jax.Array, key2: jax.Array, split_innov: jax.Array,
-                       used_columns: jax.Array, next_node_id: jax.Array, next_innov: jax.Array):
-    """Number the distinct structural proposals of a generation (``[P]`` arrays) and give each new
-    connection gene a column.
-
-    Proposals to split the same link (same innovation ``split_innov``) share one new node id and the
-    two innovation numbers of its links; proposals of the same new link (same source and target ids)
-    share one innovation number. Distinct innovations take the columns no genome uses
-    (``~used_columns``), in order: add-node pairs first, then new links; a proposal left without a
-    column is dropped (``kind`` becomes NONE) and counted.
-
-    Returns ``(kind, node_id, innov_a, innov_b, col_a, col_b, next_node_id, next_innov, n_new_nodes,
-    n_new_links, n_dropped)``; ``innov_b``/``col_b`` are used by add-node only.
-    """
-    k1 = jnp.where(kind == ADD_NODE, split_innov, jnp.where(kind == ADD_LINK, key1, -1))
-    k2 = jnp.where(kind == ADD_LINK, key2, -1)
-    order = jnp.lexsort((k2, k1, kind))
-    sk, s1, s2 = kind[order], k1[order], k2[order]
-    first = jnp.concatenate([jnp.ones((1,), bool),
-                             (sk[1:] != sk[:-1]) | (s1[1:] != s1[:-1]) | (s2[1:] != s2[:-1])])
-    node_rank = jnp.cumsum(first & (sk == ADD_NODE)) - 1
-    link_rank = jnp.cumsum(first & (sk == ADD_LINK)) - 1
-    n_node_groups = jnp.sum(first & (sk == ADD_NODE), dtype=I32)
-    # Column ranks: add node g takes free columns 2g and 2g + 1, new link l takes 2 n_node_groups + l.
-    rank_a = jnp.where(sk == ADD_NODE, 2 * node_rank, 2 * n_node_groups + link_rank)
-    rank_last = jnp.where(sk == ADD_NODE, rank_a + 1, rank_a)
-    n_free = jnp.sum(~used_columns, dtype=I32)
-    fits = (sk != NONE) & (rank_last < n_free)
-    free_cols = jnp.argsort(used_columns, stable=True).astype(I32)  # free columns first, ascending
-    c = used_columns.shape[0]
-    col_a = free_cols[jnp.clip(rank_a, 0, c - 1)]
-    col_b = free_cols[jnp.clip(rank_a + 1, 0, c - 1)]
-    # Groups that fit form a prefix of the ranks, so their numbers stay contiguous.
-    n_nodes = jnp.sum(first & fits & (sk == ADD_NODE), dtype=I32)
-    n_links = jnp.sum(first & fits & (sk == ADD_LINK), dtype=I32)
-    s_node = next_node_id + node_rank
-    s_ia = jnp.where(sk == ADD_NODE, next_innov + 2 * node_rank, next_innov + 2 * n_nodes + link_rank)
-    dropped = (sk != NONE) & ~fits
-    unsort = lambda x: jnp.zeros_like(x).at[order].set(x)
-    new_kind = unsort(jnp.where(fits, sk, NONE).astype(I32))
-    return (new_kind, unsort(s_node.astype(I32)), unsort(s_ia.astype(I32)), unsort((s_ia + 1).astype(I32)),
-            unsort(col_a), unsort(col_b), next_node_id + n_nodes, next_innov + 2 * n_nodes + n_links,
-            n_nodes, n_links, jnp.sum(dropped, dtype=I32))
 
 
 def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_a, innov_b, col_a, col_b,
@@ -557,136 +489,8 @@ def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_
                      conn_enabled=enabled & ~gone, conn_valid=(g.conn_valid | put_a | put_b) & ~gone)
 
 
-def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_id: jax.Array,
-                      next_innov: jax.Array, params: NEATParams, config: NEATConfig):
-    """Mutate every genome of ``pop`` (``[P, ...]``) not ``frozen`` (elites), with innovation numbers
-    and columns shared across the population. Returns ``(pop, next_node_id, next_innov, counters)``.
-
-    Per genome (the order of Stanley's NEAT C++): one structural mutation if drawn; otherwise, with
-    ``weight_mutate_prob``, weight mutation, and re-enabling and activation mutation at their rates.
-    """
-    p = frozen.shape[0]
-    keys = jax.random.split(key, (p, 5))
-    link_pick, link_skipped = pick_links(keys[:, 0], pop, frozen, params, config)
-    kind, key1, key2, (node_full, link_full, l_exh) = jax.vmap(
-        lambda k, g, lp: propose_structure(k, g, params, config, lp))(keys[:, 0], pop, link_pick)
-    l_exh = l_exh & ~link_skipped
-    proposed = jnp.where(frozen, NONE, kind)
-    split_innov = jnp.take_along_axis(pop.conn_innov, jnp.clip(key1, 0, config.max_conns - 1)[:, None], 1)[:, 0]
-    used = jnp.any(pop.conn_valid, axis=0)
-    deleting = proposed == DELETE_LINK  # needs no innovation number or column
-    kind, node_id, ia, ib, ca, cb, next_node_id, next_innov, n_nodes, n_links, _ = assign_innovations(
-        jnp.where(deleting, NONE, proposed), key1, key2, split_innov, used, next_node_id, next_innov)
-    kind = jnp.where(deleting, DELETE_LINK, kind)
-    no_column = kind != proposed  # dropped: no free column left
-
-    def one(k, g, kd, a, b, nid, i1, i2, c1, c2, frz, order):
-        g2 = apply_structure(k[1], g, kd, a, b, nid, i1, i2, c1, c2, params, config, order)
-        light = (kd == NONE) & ~frz
-        ku = jax.random.uniform(k[2], (3,))
-        gw = mutate_weights(k[3], g2, params, config.genes)
-        g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[0] < params.weight_mutate_prob), y, x), g2, gw)
-        gr = mutate_reenable(k[4], g2)
-        g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[1] < params.reenable_prob), y, x), g2, gr)
-        if len(config.activation_options) > 1:
-            ga = mutate_activation(jax.random.fold_in(k[4], 1), g2, config)
-            g2 = jax.tree.map(lambda x, y: jnp.where(light & (ku[2] < params.activation_mutate_prob), y, x),
-                              g2, ga)
-        return g2
-
-    pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen, link_pick[2])
-    nf = ~frozen
-    counters = Counters(node_overflow=jnp.sum((node_full | no_column & (proposed == ADD_NODE)) & nf, dtype=I32),
-                        link_overflow=jnp.sum((link_full | link_skipped | no_column & (proposed == ADD_LINK)) & nf,
-                                              dtype=I32),
-                        link_exhausted=jnp.sum(l_exh & nf, dtype=I32),
-                        new_nodes=n_nodes, new_links=n_links)
-    return pop, next_node_id, next_innov, counters
-
-
 # --------------------------------------------------------------------------------------------------
-# Validity (host side, for tests and checkpoint checks)
+# Moved to kx.neat.checks; re-exported for a caller outside kx.neat that still imports them from
+# here (kx.evolve.run). The checks import nothing of this module, so there is no import cycle.
 
-
-def check_genome(g, config: NEATConfig, weight_range: float | None = None) -> list[str]:
-    """Every broken invariant of one genome (numpy or jax arrays); an empty list if it is valid."""
-    g = jax.tree.map(np.asarray, g)
-    errs = []
-    f = config.n_fixed
-    nv, kind, ids = g.node_valid, g.node_kind, g.node_id
-    if not np.array_equal(ids[:f], np.arange(f)) or not nv[:f].all():
-        errs.append("fixed nodes do not have id == slot")
-    exp_kind = np.array([INPUT] * config.n_inputs + [BIAS] + [OUTPUT] * config.n_outputs)
-    if not np.array_equal(kind[:f], exp_kind):
-        errs.append("fixed node kinds wrong")
-    hid = nv[f:]
-    if hid.size and not np.array_equal(hid, np.sort(hid)[::-1]):
-        errs.append("hidden nodes are not a prefix")
-    if not np.array_equal(nv, ids >= 0) or not np.all(kind[f:][hid] == HIDDEN) or not np.all(kind[~nv] == EMPTY):
-        errs.append("node masks inconsistent")
-    if len(set(ids[nv].tolist())) != int(nv.sum()):
-        errs.append("duplicate node ids")
-    if np.any((g.node_act < 0) | (g.node_act >= len(config.activation_options))):
-        errs.append("activation id out of range")
-    cv = g.conn_valid
-    inn = g.conn_innov[cv]
-    if len(set(inn.tolist())) != inn.size or np.any(inn < 0):
-        errs.append("innovation numbers not unique")
-    if (np.any(g.conn_innov[~cv] != -1) or np.any(g.conn_src[~cv] != -1) or np.any(g.conn_dst[~cv] != -1)
-            or np.any(g.conn_enabled[~cv]) or np.any(g.conn_weight[~cv] != 0)):
-        errs.append("empty connection columns not cleared")
-    id_kind = {int(i): int(k) for i, k in zip(ids[nv], kind[nv])}
-    slot = {int(i): k for k, i in enumerate(ids.tolist()) if nv[k]}
-    pairs = set()
-    edges = []
-    for s, d in zip(g.conn_src[cv].tolist(), g.conn_dst[cv].tolist()):
-        if s not in id_kind or d not in id_kind:
-            errs.append(f"link {s}->{d} points at a missing node")
-            continue
-        if id_kind[s] not in (INPUT, BIAS, HIDDEN) or id_kind[d] not in (HIDDEN, OUTPUT):
-            errs.append(f"link {s}->{d} joins wrong node kinds")
-        if (s, d) in pairs:
-            errs.append(f"duplicate link {s}->{d}")
-        pairs.add((s, d))
-        edges.append((s, d))
-        if id_kind[s] == HIDDEN and id_kind[d] == HIDDEN and slot[s] > slot[d]:
-            errs.append(f"link {s}->{d} goes from a later hidden slot to an earlier one")
-    w = g.conn_weight[cv]
-    if not np.all(np.isfinite(w)) or (weight_range is not None and np.any(np.abs(w) > weight_range + 1e-6)):
-        errs.append("weight out of range")
-    # Acyclic (Kahn) over all links.
-    indeg = {i: 0 for i in id_kind}
-    out = {i: [] for i in id_kind}
-    for s, d in edges:
-        if s in out and d in indeg:
-            out[s].append(d)
-            indeg[d] += 1
-    queue = [i for i, v in indeg.items() if v == 0]
-    seen = 0
-    while queue:
-        i = queue.pop()
-        seen += 1
-        for j in out[i]:
-            indeg[j] -= 1
-            if indeg[j] == 0:
-                queue.append(j)
-    if seen != len(indeg):
-        errs.append("the network has a cycle")
-    return errs
-
-
-def check_population(pop, config: NEATConfig, weight_range: float | None = None) -> list[str]:
-    """:func:`check_genome` on every genome, plus across the population: one innovation number per
-    structural gene (the same number always joins the same pair of nodes, in the same column)."""
-    pop = jax.tree.map(np.asarray, pop)
-    errs = []
-    by_innov: dict[int, tuple[int, int, int]] = {}
-    for i in range(pop.node_id.shape[0]):
-        g = jax.tree.map(lambda x: x[i], pop)
-        errs += [f"genome {i}: {e}" for e in check_genome(g, config, weight_range)]
-        cols = np.flatnonzero(g.conn_valid)
-        for c, inn, s, d in zip(cols.tolist(), g.conn_innov[cols].tolist(), g.conn_src[cols].tolist(),
-                                g.conn_dst[cols].tolist()):
-            if by_innov.setdefault(inn, (s, d, c)) != (s, d, c):
-                errs.append(f"genome {i}: innovation {inn} joins {s}->{d} in column {c}, elsewhere {by_innov[inn]}")
-    return errs
+from kx.neat.checks import check_genome, check_population  # noqa: E402, F401
