@@ -25,6 +25,28 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+# A shared table replicated on both devices while each device compacts its own lanes (600 lanes of 12
+# linear policies: the batch narrows through several widths).
+SHARED_SCRIPT = textwrap.dedent("""
+    import jax, numpy as np
+    assert jax.local_device_count() == 2
+    from kx.sim import env, observe, policies, evaluate as ev
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+    cfg, params = KeepAwayConfig(), KeepAwayParams(max_iterations=120)
+    starts = env.reset_batch(jax.random.key(10), 50, params, cfg)
+    n = observe.n_inputs("fixed", cfg) * 3 + 3
+    table = policies.linear_params(jax.random.normal(jax.random.key(11), (12, n)), cfg)
+    pol = policies.linear_policy(cfg, shared=True)
+    c1, c2 = ev.EvalCounters(), ev.EvalCounters()
+    one = ev.evaluate(pol, table, starts, params, cfg, devices=1, key=jax.random.key(12), counters=c1)
+    two = ev.evaluate(pol, table, starts, params, cfg, devices=2, key=jax.random.key(12), counters=c2)
+    assert len(c2.widths) >= 3, c2.widths
+    for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
+        np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
+    print("ok", list(c2.widths))
+""")
+
+
 XOR_SCRIPT = textwrap.dedent("""
     import jax, numpy as np
     assert jax.local_device_count() == 2
@@ -54,6 +76,10 @@ def _two_device_process(script):
 
 def test_two_devices_equal_one(tmp_path):
     _two_device_process(SCRIPT)
+
+
+def test_shared_table_on_two_devices_equals_one():
+    _two_device_process(SHARED_SCRIPT)
 
 
 def test_xor_runs_split_over_two_devices_equal_one_device():

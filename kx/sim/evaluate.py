@@ -7,10 +7,20 @@ width compiles once per (policy, task) and is reused across generations. A batch
 early therefore costs about what its live steps cost, and the results equal those of each episode run
 alone (lanes never interact; the tests check this).
 
-Randomness does not depend on how lanes are batched. The kick noise of trial ``i`` at iteration ``t``
-is :func:`kx.sim.env.kick_noise` of the trial's word ``bits(fold_in(noise_key, i))`` and ``t``, the same
-for every policy (common random numbers); stochastic policies get ``fold_in(fold_in(policy_key, lane),
-t)``.
+Policies take their parameters in one of two ways (:class:`kx.sim.policies.Policy`, ``shared``). Per
+lane, each lane carries a copy of its policy's parameter set, batch-last like the state, gathered with
+the lanes when the batch narrows. Shared, the lanes carry only their policy's index (``lane // T``,
+int32); the whole table of G parameter sets is one argument of the compiled loop, the same for every
+lane (replicated on every device), and the policy gathers its rows itself
+(:class:`kx.sim.policies.Shared`). Shared tables cost their size once instead of once per lane.
+
+Randomness does not depend on how lanes are batched. Two streams derive from the evaluation's key:
+*evaluator noise* (the kicks), ``noise_key = fold_in(key, 0)``, and *policy noise* (stochastic
+policies), ``policy_key = fold_in(key, 1)`` (equal to ``split(key)[0]`` and ``[1]`` under the default
+threefry keys). The kick noise of trial ``i`` at iteration ``t`` is :func:`kx.sim.env.kick_noise` of the
+trial's word ``bits(fold_in(noise_key, i))`` and ``t``, the same for every policy (common random
+numbers); stochastic policies get ``fold_in(fold_in(policy_key, lane), t)`` with ``lane = g * T + i``
+for policy ``g`` and trial ``i``.
 """
 
 from __future__ import annotations
@@ -24,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from kx.sim import env, ops
-from kx.sim.policies import Policy
+from kx.sim.policies import Policy, Shared
 from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
 
 
@@ -59,24 +69,33 @@ def width_ladder(n: int, smallest: int = 64, multiple: int = 1) -> list[int]:
     return sorted(sizes, reverse=True)
 
 
+def stream_keys(key: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The evaluator's two streams of an evaluation key: ``(noise_key, policy_key)`` = ``(fold_in(key,
+    0), fold_in(key, 1))``, kick noise and policy noise."""
+    return jax.random.fold_in(key, 0), jax.random.fold_in(key, 1)
+
+
 def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
     """One key per lane for iteration ``t``: ``fold_in(fold_in(key, id), t)``."""
     return jax.vmap(lambda i, tt: jax.random.fold_in(jax.random.fold_in(key, i), tt))(ids, t)
 
 
 def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_id: jax.Array,
-                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array, *,
-                   policy: Policy, config: KeepAwayConfig):
+                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array,
+                   table: Any = None, *, policy: Policy, config: KeepAwayConfig):
     """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early once at most ``stop_at``
     lanes are live (the next narrower batch width would hold them; 0: when all have finished).
     ``noise_word [n]``: each lane's trial's kick-noise word (:func:`kx.sim.env.noise_words`).
+    ``lane_params``: each lane's parameters, or for a shared policy each lane's row of ``table``
+    (``[n]`` int32).
     """
-    policy_key = jax.random.split(key)[1]
+    policy_key = stream_keys(key)[1]
     s_max = env.noise_limit(params.kick_noise_deg)
+    policy_params = Shared(table, lane_params) if policy.shared else lane_params
 
     def one(state):
         pkeys = _lane_keys(policy_key, lane_id, state.t) if policy.stochastic else None
-        action = ops.fenced(policy.apply, lane_params, state, pkeys)
+        action = ops.fenced(policy.apply, policy_params, state, pkeys)
         noise = env.kick_noise(noise_word, state.t, s_max)
         return env.transition(state, action, noise, params, config)
 
@@ -104,25 +123,25 @@ def _lane_specs(tree):
 
 
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"))
-def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, *, policy, config, n_dev):
+def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, table=None, *, policy, config,
+             n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes are done or fit its share of the next narrower width (a global
-    count would need a collective every iteration, which measured slower). Returns the state and,
-    per device, the iterations it ran and its live lanes ``[n_dev, 2]``."""
+    count would need a collective every iteration, which measured slower). A shared policy's
+    ``table`` is replicated: every device reads the whole of it. Returns the state and, per device,
+    the iterations it ran and its live lanes ``[n_dev, 2]``."""
     local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
-        return local(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at)
+        return local(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, table)
     mesh = _mesh(n_dev)
     lanes = jax.sharding.PartitionSpec("lanes")
     rep = jax.sharding.PartitionSpec()
     in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params),
-                rep, rep)
+                rep, rep, jax.tree.map(lambda _: rep, table))
     out_specs = (_lane_specs(state), jax.sharding.PartitionSpec("lanes", None))
     # each device stops once its own live lanes fit its share of the narrower width
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
-        state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev)
-
-
+        state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev, table)
 
 
 @functools.partial(jax.jit, static_argnames=("width", "n_dev"))
@@ -180,10 +199,14 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
 
     Args:
       policy: the policy (see :mod:`kx.sim.policies`).
-      policy_params: a pytree with a leading axis of G parameter sets, or ``None`` (G = 1).
+      policy_params: a pytree with a leading axis of G parameter sets, or ``None`` (G = 1). Per lane
+        (``policy.shared`` false) each set is copied into the lanes that play it; for a shared policy
+        the pytree is the table every lane reads (:class:`kx.sim.policies.Shared`), never copied per
+        lane. Either way it is an argument of the compiled calls: new values do not recompile.
       starts: T start states, batch-last (``[.., T]``), e.g. from :func:`kx.sim.env.reset_batch`.
       params, config: the world.
-      key: needed for kick noise and stochastic policies.
+      key: needed for kick noise and stochastic policies: evaluator noise (the kicks) draws from
+        ``fold_in(key, 0)``, policy noise from ``fold_in(key, 1)`` (:func:`stream_keys`).
       chunk: the most iterations per compiled call. A call also returns as soon as its live lanes
         fit the next narrower width, so the batch narrows without waiting for the chunk to end; calls
         start at ``first_chunk`` iterations and double.
@@ -210,15 +233,20 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # the same keys, so recording it twice writes the same values.
     lane_id = jnp.arange(width, dtype=jnp.int32) % n
     trial_id = lane_id % n_trials
-    noise_word = jnp.take(env.noise_words(jax.random.split(key)[0], jnp.arange(n_trials)), trial_id)
+    noise_word = jnp.take(env.noise_words(stream_keys(key)[0], jnp.arange(n_trials)), trial_id)
     state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
-    lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
-                               policy_params)
+    if policy.shared:  # lanes carry their row of the table; the table stays whole
+        lane_params, table = lane_id // n_trials, policy_params
+    else:
+        lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
+                                   policy_params)
+        table = None
     if n_dev > 1:  # split the lanes once; in any other layout every sharded call would reshard them
         mesh = _mesh(n_dev)
         lanes = (state, lane_params, noise_word, lane_id)
         state, lane_params, noise_word, lane_id = jax.device_put(
             lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
+        table = jax.device_put(table, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
     widths = [width]
     this_chunk = max(1, min(first_chunk, chunk))
@@ -226,7 +254,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         narrower = [w for w in ladder if w < width and w <= SHRINK * width]
         stop_at = np.int32(narrower[0] if narrower else 0)
         state, progress = _advance(state, lane_params, noise_word, lane_id, key, params,
-                                   np.int32(this_chunk), stop_at, policy=policy, config=config,
+                                   np.int32(this_chunk), stop_at, table, policy=policy, config=config,
                                    n_dev=n_dev)
         this_chunk = min(2 * this_chunk, chunk)
         progress = np.asarray(jax.device_get(progress))  # one host sync per call
@@ -255,28 +283,38 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
 
 def rollout(policy: Policy, policy_params: Any, start: State, params: KeepAwayParams,
             config: KeepAwayConfig, *, key: jax.Array | None = None, n_steps: int | None = None,
-            trial: int = 0):
+            trial: int = 0, policy_index: int = 0, lane: int | None = None):
     """One episode step by step, every state kept (for rendering and inspection).
 
-    ``policy_params`` is one parameter set (no leading axis). Returns the stacked states
-    ``[n_steps + 1]`` (leading axis; the first is ``start``) and the actions taken ``[n_steps]``.
-    Steps after the episode ends repeat its final state. With the same ``key``, ``trial = i`` plays
-    the kick noise of trial ``i`` of :func:`evaluate` (and a stochastic policy the keys of its lane
-    ``i``, the first policy's), so it replays that episode exactly.
+    ``policy_params`` is one parameter set (no leading axis) of a per-lane policy, or for a shared
+    policy (``policy.shared``) the whole table with its leading axis G, of which row ``policy_index``
+    plays (ignored for per-lane policies). Returns the stacked states ``[n_steps + 1]`` (leading axis;
+    the first is ``start``) and the actions taken ``[n_steps]``. Steps after the episode ends repeat
+    its final state.
+
+    With the same ``key``, ``trial = i`` plays the kick noise of trial ``i`` of :func:`evaluate`, and a
+    stochastic policy the policy keys of lane ``lane`` (default ``trial``: the first policy's lane of
+    that trial; policy ``g`` of an evaluation of ``T`` trials played trial ``i`` in lane ``g * T + i``),
+    so it replays that episode exactly.
     """
     n_steps = int(params.max_iterations) if n_steps is None else n_steps
     key = jax.random.key(0) if key is None else key
-    return _rollout(policy, policy_params, start, key, params, jnp.int32(trial), config=config, n_steps=n_steps)
+    lane = trial if lane is None else lane
+    return _rollout(policy, policy_params, start, key, params, jnp.int32(trial), jnp.int32(policy_index),
+                    jnp.int32(lane), config=config, n_steps=n_steps)
 
 
 @functools.partial(jax.jit, static_argnums=(0,), static_argnames=("config", "n_steps"))
-def _rollout(policy, policy_params, start, key, params, trial, *, config, n_steps):
-    noise_key, policy_key = jax.random.split(key)
+def _rollout(policy, policy_params, start, key, params, trial, policy_index, lane_id, *, config, n_steps):
+    noise_key, policy_key = stream_keys(key)
     s_max = env.noise_limit(params.kick_noise_deg)
-    lane = jnp.full((1,), trial, jnp.int32)
-    word = env.noise_words(noise_key, lane)
+    word = env.noise_words(noise_key, jnp.full((1,), trial, jnp.int32))
+    lane = jnp.full((1,), lane_id, jnp.int32)
     batched = jax.tree.map(lambda a: a[..., None], start)
-    lp = jax.tree.map(lambda p: jnp.asarray(p)[..., None], policy_params)
+    if policy.shared:
+        lp = Shared(policy_params, jnp.full((1,), policy_index, jnp.int32))
+    else:
+        lp = jax.tree.map(lambda p: jnp.asarray(p)[..., None], policy_params)
 
     def body(state, _):
         pkeys = _lane_keys(policy_key, lane, state.t) if policy.stochastic else None
