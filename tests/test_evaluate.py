@@ -49,13 +49,55 @@ def test_evaluate_equals_single_episode_rollouts():
 def test_finished_episodes_are_not_paid_for():
     starts = env.reset_batch(jax.random.key(2), 60, PARAMS, CFG)
     c = ev.EvalCounters()
-    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c, key=jax.random.key(0))
+    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c, key=jax.random.key(0),
+                        first_chunk=2, chunk=16)
     assert np.all(np.asarray(stats.reason) == Reason.TACKLED)  # holding never survives
     longest = int(stats.iterations.max())
-    assert c.live_steps == int(stats.iterations.sum())
-    # lockstep runs until the longest episode ends (overshooting by less than one chunk), not 600 steps
-    assert c.executed_steps <= 60 * (2 * longest + 8)
-    assert c.executed_steps < 60 * PARAMS.max_iterations / 5
+    # 60 lanes: one rung, so every call steps all 60 until the last episode ends, not 600 steps
+    assert c.widths == (60,)
+    assert c.executed_steps == 60 * longest
+    # calls of 2, 4, 8, 16, 16, ... iterations, the last cut short when the last episode ends
+    lengths = [min(2 << i, 16) for i in range(100)]
+    assert c.chunks == next(m for m in range(1, 100) if sum(lengths[:m]) >= longest)
+    # live lane-steps counted independently: a plain lockstep loop counting the lanes not yet done
+    # (holding never kicks, so the kick noise plays no part)
+    def live_count(state, _):
+        nxt = env.transition(state, jnp.maximum(state.holder, 0), jnp.zeros_like(state.holder), PARAMS, CFG)
+        return nxt, jnp.sum(~state.done, dtype=jnp.int32)
+
+    _, live = jax.jit(lambda s: jax.lax.scan(live_count, s, None, length=longest + 1))(starts)
+    assert int(live[-1]) == 0 and c.live_steps == int(live.sum())
+
+
+def test_eval_key_streams():
+    """Evaluator noise and policy noise are ``fold_in(key, 0)`` and ``fold_in(key, 1)``, the values
+    ``split(key)`` gave before they were named: results are those of a plain loop built on split."""
+    for seed in range(4):
+        key = jax.random.key(seed)
+        got, old = ev.stream_keys(key), jax.random.split(key)
+        for i in range(2):
+            np.testing.assert_array_equal(jax.random.key_data(got[i]), jax.random.key_data(old[i]))
+    n_pol, n_trials, params = 2, 10, KeepAwayParams(max_iterations=200)
+    starts = env.reset_batch(jax.random.key(3), n_trials, params, CFG)
+    key = jax.random.key(4)
+    pol = policies.random_policy(CFG)
+    stats = ev.evaluate(pol, {"unused": jnp.zeros((n_pol,))}, starts, params, CFG, key=key)
+    noise_key, policy_key = jax.random.split(key)
+    lanes = jnp.arange(n_pol * n_trials)
+    state = jax.tree.map(lambda a: jnp.take(a, lanes % n_trials, axis=-1), starts)
+    words = env.noise_words(noise_key, lanes % n_trials)
+    s_max = env.noise_limit(params.kick_noise_deg)
+
+    def step(state, _):
+        keys = jax.vmap(lambda i, t: jax.random.fold_in(jax.random.fold_in(policy_key, i), t))(lanes, state.t)
+        action = pol.apply(None, state, keys)
+        return env.transition(state, action, env.kick_noise(words, state.t, s_max), params, CFG), None
+
+    final, _ = jax.jit(lambda s: jax.lax.scan(step, s, None, length=200))(state)
+    assert bool(jnp.all(final.done))
+    np.testing.assert_array_equal(np.asarray(final.t).reshape(n_pol, n_trials), np.asarray(stats.iterations))
+    np.testing.assert_array_equal(np.asarray(final.passes).reshape(n_pol, n_trials), np.asarray(stats.passes))
+    assert int(final.passes.sum()) > 0  # the policy's draws and the kick noise mattered
 
 
 def test_stochastic_policy_needs_key_and_is_reproducible():
