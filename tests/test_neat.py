@@ -460,6 +460,8 @@ def test_neat_class_refuses_a_fitness_of_the_wrong_shape():
     pop, state = neat.ask(jax.random.key(1), state)
     with pytest.raises(NEATError, match="expected \\(24,\\)"):
         neat.tell(jax.random.key(2), pop, jnp.zeros((23,)), state)
+    with pytest.raises(NEATError, match="fitness has shape \\(23,\\)"):
+        neat.tell(jax.random.key(2), pop, jnp.zeros((24,)), state, fitness=jnp.zeros((23,)))
     state2, metrics = neat.tell(jax.random.key(2), pop, jnp.arange(24.0), state)
     assert int(state2.generation) == 1 and float(metrics["best_fitness"]) == 23.0
 

@@ -7,6 +7,8 @@ Stanley & Miikkulainen (2002), with the choices of ``SPEC.md`` §2::
         population, state = ask(key_ask, state, params, config)     # Genome pytree, [P, ...]
         fitness = my_fitness(build_networks(population))            # [P] float, higher is better
         state, metrics = tell(key_tell, population, fitness, state, params, config)
+        # or: select on another score (a novelty hybrid, say) and report the task fitness
+        # state, metrics = tell(key_tell, population, score, state, params, config, fitness=fitness)
 
 ``tell`` is the whole generation step: species bookkeeping and stagnation, explicit fitness sharing,
 offspring allocation, selection within the top ``survival_threshold`` of each species, champion
@@ -138,39 +140,54 @@ def build_networks(population: Genome, config: NEATConfig) -> Network:
     return jax.vmap(lambda g: build(g, config))(population)
 
 
-def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATState, params: NEATParams,
-         config: NEATConfig) -> tuple[NEATState, dict]:
-    """Score the evaluated ``population`` with ``fitness`` ``[P]`` and breed the next generation.
+def _finite(x: jax.Array) -> jax.Array:
+    """``[P]`` float32 with non-finite values replaced by the worst finite one (0 if none is finite)."""
+    x = jnp.asarray(x, F32)
+    ok = jnp.isfinite(x)
+    x = jnp.where(ok, x, jnp.min(jnp.where(ok, x, jnp.inf)))
+    return jnp.where(jnp.any(ok), x, 0.0)
 
-    Non-finite fitness counts as the population's worst finite value. Returns the new state and this
-    generation's metrics (scalars and ``[S]`` arrays, about the evaluated population).
+
+def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState, params: NEATParams,
+         config: NEATConfig, fitness: jax.Array | None = None) -> tuple[NEATState, dict]:
+    """Select on ``score`` ``[P]`` of the evaluated ``population`` and breed the next generation.
+
+    ``score`` is what the learner selects on: explicit fitness sharing, offspring allocation, parent
+    ranking within the survival threshold, elitism, and the species' bests that decide stagnation
+    (``state.species_best`` holds scores). Stagnation counts as selection, so a species whose score
+    keeps improving (a novelty hybrid, say) stays alive even when its task fitness does not.
+    ``fitness`` ``[P]`` (default: ``score``) is the task fitness: it alone decides
+    ``state.best_genome``/``best_fitness`` and every fitness metric (``best_fitness``,
+    ``mean_fitness``, ``median_fitness``; ``champion_hidden``/``champion_links`` describe the fittest
+    genome). With ``fitness=None`` this is the plain NEAT step on ``score``.
+
+    In both, non-finite values count as the population's worst finite value. Returns the new state and
+    this generation's metrics (scalars and ``[S]`` arrays, about the evaluated population).
     """
     p, s = config.population_size, config.species_capacity
     gen = state.generation
-    f = jnp.asarray(fitness, F32)
-    ok = jnp.isfinite(f)
-    f = jnp.where(ok, f, jnp.min(jnp.where(ok, f, jnp.inf)))
-    f = jnp.where(jnp.any(ok), f, 0.0)
+    sc = _finite(score)  # what selection sees
+    f = sc if fitness is None else _finite(fitness)  # what is reported, and the best genome
     sp = state.species
     k_par, k_mut, k_rep, k_x = jax.random.split(key, 4)
 
     # Species bookkeeping: improvement and stagnation.
     counts = jax.ops.segment_sum(jnp.ones((p,), I32), sp, s)
-    sp_max = jax.ops.segment_max(f, sp, s)
+    sp_max = jax.ops.segment_max(sc, sp, s)
     improved = state.species_alive & (sp_max > state.species_best)
     sp_best = jnp.where(improved, sp_max, state.species_best)
     sp_improved = jnp.where(improved, gen, state.species_improved)
-    champ = jnp.argmax(f)
-    stagnant = (gen - sp_improved >= params.stagnation_limit) & (jnp.arange(s) != sp[champ])
+    top = jnp.argmax(sc)  # the species of the best score is never stagnant
+    stagnant = (gen - sp_improved >= params.stagnation_limit) & (jnp.arange(s) != sp[top])
     eligible = state.species_alive & (counts > 0) & ~stagnant
 
     # Explicit fitness sharing: a species' share is the sum of its members' f / |species|.
-    fs = f - jnp.minimum(0.0, jnp.min(f))
+    fs = sc - jnp.minimum(0.0, jnp.min(sc))
     share = jax.ops.segment_sum(fs, sp, s) / jnp.maximum(counts, 1)
     n_off = allocate(share, eligible, p, jnp.asarray(params.max_species_population, I32))
 
-    # Parents: members sorted by species, then fitness (descending).
-    order = jnp.lexsort((-f, sp)).astype(I32)
+    # Parents: members sorted by species, then score (descending).
+    order = jnp.lexsort((-sc, sp)).astype(I32)
     mem_start = jnp.cumsum(counts) - counts
     pool = jnp.clip(jnp.floor(params.survival_threshold * counts).astype(I32) + 1, 1, jnp.maximum(counts, 1))
     off_end = jnp.cumsum(n_off)
@@ -183,8 +200,8 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
     p1 = pick(ks[1], child_sp)
     other_sp = jax.random.categorical(ks[2], jnp.where(eligible & (counts > 0), 0.0, -jnp.inf), shape=(p,)).astype(I32)
     p2 = jnp.where(u[:, 1] < params.interspecies_prob, pick(ks[3], other_sp), pick(ks[4], child_sp))
-    fitter = jnp.where(f[p2] > f[p1], p2, p1)
-    weaker = jnp.where(f[p2] > f[p1], p1, p2)
+    fitter = jnp.where(sc[p2] > sc[p1], p2, p1)
+    weaker = jnp.where(sc[p2] > sc[p1], p1, p2)
     crossed = jax.vmap(lambda k, a, b: gn.crossover(k, a, b, params, config.genes))(
         jax.random.split(k_x, p), _take(population, fitter), _take(population, weaker))
     mut_only = u[:, 0] < params.mutation_only_prob
@@ -220,6 +237,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
                        jnp.where(sp_over > 0, 1.0 + params.threshold_step, 1.0))
     threshold = jnp.maximum(used_threshold * factor, params.threshold_min)
 
+    champ = jnp.argmax(f)  # the fittest genome (top, when fitness is the score)
     better = f[champ] > state.best_fitness
     best_genome = jax.tree.map(lambda a, b: jnp.where(better, a, b), _take(population, champ), state.best_genome)
     new_state = NEATState(
@@ -250,6 +268,7 @@ def tell(key: jax.Array, population: Genome, fitness: jax.Array, state: NEATStat
         "node_overflow": counters.node_overflow,
         "link_overflow": counters.link_overflow,
         "link_exhausted": counters.link_exhausted,
+        "link_capped": counters.link_capped,
         "species_overflow": sp_over,
         "new_nodes": counters.new_nodes,
         "new_links": counters.new_links,
@@ -272,6 +291,7 @@ class NEAT:
         state = neat.init(key)
         population, state = neat.ask(k1, state)
         state, metrics = neat.tell(k2, population, fitness, state)
+        # or neat.tell(k2, population, score, state, fitness=fitness): see :func:`tell`
     """
 
     def __init__(self, config: NEATConfig, params: NEATParams | None = None):
@@ -288,12 +308,13 @@ class NEAT:
     def ask(self, key: jax.Array, state: NEATState, params: NEATParams | None = None):
         return ask(key, state, params or self.default_params, self.config)
 
-    def tell(self, key, population, fitness, state, params: NEATParams | None = None):
-        shape = getattr(fitness, "shape", None)
-        if shape != (self.config.population_size,):
-            raise NEATError(f"fitness has shape {shape}: expected ({self.config.population_size},), one value "
-                            "per genome of the population")
-        return self._tell(key, population, fitness, state, params or self.default_params)
+    def tell(self, key, population, score, state, params: NEATParams | None = None, fitness=None):
+        for name, x in (("score", score), ("fitness", fitness)):
+            shape = getattr(x, "shape", None)
+            if (x is not None or name == "score") and shape != (self.config.population_size,):
+                raise NEATError(f"{name} has shape {shape}: expected ({self.config.population_size},), one value "
+                                "per genome of the population")
+        return self._tell(key, population, score, state, params or self.default_params, fitness=fitness)
 
     def networks(self, population: Genome) -> Network:
         return self._build(population)

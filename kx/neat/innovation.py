@@ -6,7 +6,8 @@ The same structural innovation arising in several genomes of one generation gets
 steps so that the per-genome parts stay single-genome operators of :mod:`kx.neat.genome`:
 
 1. :func:`~kx.neat.genome.propose_structure` (per genome) picks the link to split or the link to add;
-   :func:`pick_links` computes the add-link candidates for the few genomes that draw add-link;
+   :func:`pick_links` computes the add-link candidates for the few genomes that draw add-link, at most
+   ``NEATConfig.add_link_cap`` of them per generation (the rest are skipped and counted, ``link_capped``);
 2. :func:`assign_innovations` (over the population) numbers the distinct proposals and gives each new
    connection gene a column no genome of the generation uses;
 3. :func:`~kx.neat.genome.apply_structure` (per genome) writes the genes with those numbers.
@@ -28,12 +29,13 @@ I32 = jnp.int32
 
 def pick_links(keys: jax.Array, pop: Genome, frozen: jax.Array, params: NEATParams, config: NEATConfig):
     """The new link of every genome that draws add-link (``[P]`` keys as given to
-    :func:`~kx.neat.genome.propose_structure`), computing candidate links only for those genomes: at
-    most ``max(8, P // 8)`` of them (about 5% draw it); any beyond are skipped and returned as overflow.
-    Returns ``((pair, has_pair, order), overflow)``: ``[P]`` each but ``order`` ``[P, max_nodes]``, the
+    :func:`~kx.neat.genome.propose_structure`), computing candidate links only for those genomes: the
+    first ``NEATConfig.add_link_cap_of(P)`` of them in population order (by default ``max(8, P // 8)``;
+    at Stanley's add-link rate about 5% draw it); any beyond are skipped and returned as ``capped``.
+    Returns ``((pair, has_pair, order), capped)``: ``[P]`` each but ``order`` ``[P, max_nodes]``, the
     :func:`~kx.neat.genome.link_order` that adding the picked link needs (the identity for the others)."""
     p = frozen.shape[0]
-    m = min(p, max(8, p // 8))
+    m = config.add_link_cap_of(p)  # sets the shape of the candidate computation: static
     _, want, _, _, k_link = jax.vmap(lambda k: gn.structure_draw(k, params))(keys)
     want = want & ~frozen
     idx = jnp.searchsorted(jnp.cumsum(want.astype(I32)), jnp.arange(1, m + 1, dtype=I32)).astype(I32)
@@ -108,10 +110,10 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
     """
     p = frozen.shape[0]
     keys = jax.random.split(key, (p, 5))
-    link_pick, link_skipped = pick_links(keys[:, 0], pop, frozen, params, config)
+    link_pick, link_capped = pick_links(keys[:, 0], pop, frozen, params, config)
     kind, key1, key2, (node_full, link_full, l_exh) = jax.vmap(
         lambda k, g, lp: gn.propose_structure(k, g, params, config, lp))(keys[:, 0], pop, link_pick)
-    l_exh = l_exh & ~link_skipped
+    l_exh = l_exh & ~link_capped  # a capped genome never looked for a link
     proposed = jnp.where(frozen, gn.NONE, kind)
     split_innov = jnp.take_along_axis(pop.conn_innov, jnp.clip(key1, 0, config.max_conns - 1)[:, None], 1)[:, 0]
     used = jnp.any(pop.conn_valid, axis=0)
@@ -138,8 +140,8 @@ def mutate_population(key: jax.Array, pop: Genome, frozen: jax.Array, next_node_
     pop = jax.vmap(one)(keys, pop, kind, key1, key2, node_id, ia, ib, ca, cb, frozen, link_pick[2])
     nf = ~frozen
     counters = Counters(node_overflow=jnp.sum((node_full | no_column & (proposed == gn.ADD_NODE)) & nf, dtype=I32),
-                        link_overflow=jnp.sum((link_full | link_skipped | no_column & (proposed == gn.ADD_LINK)) & nf,
-                                              dtype=I32),
+                        link_overflow=jnp.sum((link_full | no_column & (proposed == gn.ADD_LINK)) & nf, dtype=I32),
                         link_exhausted=jnp.sum(l_exh & nf, dtype=I32),
+                        link_capped=jnp.sum(link_capped & nf, dtype=I32),
                         new_nodes=n_nodes, new_links=n_links)
     return pop, next_node_id, next_innov, counters

@@ -56,6 +56,11 @@ class NEATConfig:
       hidden_activation, output_activation: the activation of new hidden nodes and of output nodes.
       random_hidden_activation: new hidden nodes draw their activation from ``activation_options``
         (HyperNEAT's CPPNs) instead of taking ``hidden_activation``.
+      max_add_links: the most genomes per generation whose add-link mutation is carried out (link
+        candidates are computed for that many genomes, so it sets an array shape); 0: ``max(8,
+        population_size // 8)``, about 2.5 times the expected count at Stanley's add-link rate 0.05.
+        Add-link draws beyond it, in population order, are skipped and counted (``link_capped``).
+        :attr:`add_link_cap` is the resolved value.
     """
 
     n_inputs: int
@@ -69,6 +74,7 @@ class NEATConfig:
     hidden_activation: str = "sigmoid"
     output_activation: str = "sigmoid"
     random_hidden_activation: bool = False
+    max_add_links: int = 0
 
     def __post_init__(self):
         def need(ok, field, allowed):
@@ -94,6 +100,9 @@ class NEATConfig:
              "activation_options", f"distinct names from {sorted(ACTIVATIONS)}")
         need(self.hidden_activation in opts, "hidden_activation", f"one of activation_options {opts}")
         need(self.output_activation in opts, "output_activation", f"one of activation_options {opts}")
+        need(isinstance(self.max_add_links, int) and not isinstance(self.max_add_links, bool)
+             and 0 <= self.max_add_links <= self.population_size, "max_add_links",
+             f"0 (max(8, population_size // 8)) or an integer in 1..population_size ({self.population_size})")
         object.__setattr__(self, "activation_options", opts)
 
     @property
@@ -110,6 +119,15 @@ class NEATConfig:
     def genes(self) -> int:
         """Connection genes one genome may carry."""
         return self.max_genes or self.max_conns
+
+    @property
+    def add_link_cap(self) -> int:
+        """Genomes per generation whose add-link mutation is carried out (``max_add_links`` resolved)."""
+        return self.add_link_cap_of(self.population_size)
+
+    def add_link_cap_of(self, p: int) -> int:
+        """:attr:`add_link_cap` for a population of ``p`` genomes (operators accept any ``p``)."""
+        return min(p, self.max_add_links or max(8, p // 8))
 
     @property
     def n_initial_conns(self) -> int:
@@ -246,6 +264,7 @@ class Counters:
     node_overflow: jax.Array  # add-node mutations skipped for lack of a hidden slot, gene room or columns
     link_overflow: jax.Array  # add-link mutations skipped for lack of gene room or a column
     link_exhausted: jax.Array  # add-link mutations with no new feed-forward link left to add
+    link_capped: jax.Array  # add-link mutations skipped: more genomes drew add-link than add_link_cap
     new_nodes: jax.Array  # distinct add-node innovations this generation
     new_links: jax.Array  # distinct add-link innovations this generation
 
@@ -258,12 +277,12 @@ class NEATState:
     species: jax.Array  # [P] int32 species slot of each genome
     species_alive: jax.Array  # [S] bool
     species_uid: jax.Array  # [S] int32 id of the species in the slot (unique over the run)
-    species_best: jax.Array  # [S] float32 best fitness the species ever reached
+    species_best: jax.Array  # [S] float32 best score (what tell selects on) the species ever reached
     species_improved: jax.Array  # [S] int32 generation of its last improvement
     threshold: jax.Array  # float32 current compatibility threshold
     next_node_id: jax.Array  # int32
     next_innov: jax.Array  # int32
     next_species_uid: jax.Array  # int32
     generation: jax.Array  # int32: number of completed tell() calls
-    best_genome: Genome  # the fittest genome evaluated so far
+    best_genome: Genome  # the fittest genome evaluated so far (by task fitness, not score)
     best_fitness: jax.Array  # float32
