@@ -83,21 +83,65 @@ def test_cppn_genomes_stay_valid_and_carry_activations():
     assert len(set(acts.tolist())) >= 4
 
 
+@functools.lru_cache(maxsize=None)
+def _lineage(config, p=8):
+    """A jitted ``(key, params, steps) -> population``: ``p`` initial genomes bred for ``steps`` rounds of
+    random crossover (random pairs, either one the fitter) and :func:`inn.mutate_population` (a random
+    fifth frozen), with innovation numbers shared as in a run."""
+
+    def run(key, params, steps):
+        pop = jax.vmap(lambda k: gn.initial_genome(k, config, params))(jax.random.split(key, p))
+
+        def body(i, c):
+            pop, node, innov = c
+            k_a, k_b, k_x, k_f, k_m = jax.random.split(jax.random.fold_in(key, i), 5)
+            a, b = jax.random.randint(k_a, (p,), 0, p), jax.random.randint(k_b, (p,), 0, p)
+            kids = jax.vmap(lambda k, x, y: gn.crossover(k, x, y, params, config.genes))(
+                jax.random.split(k_x, p), one(pop, a), one(pop, b))
+            frozen = jax.random.bernoulli(k_f, 0.2, (p,))
+            pop, node, innov, _ = inn.mutate_population(k_m, kids, frozen, node, innov, params, config)
+            return pop, node, innov
+
+        init = (pop, jnp.int32(config.n_fixed), jnp.int32(config.n_initial_conns))
+        return jax.lax.fori_loop(0, steps, body, init)[0]
+
+    return jax.jit(run)
+
+
+@jax.jit
+def _pair_facts(key, a, b, params):
+    return (gn.crossover(key, a, a, params), gn.distance(a, a, params), gn.distance(a, b, params),
+            gn.distance(b, a, params), gn.crossover(key, a, b, params))
+
+
+probability = st.floats(0.0, 1.0)
+
+
 @settings(max_examples=25, deadline=None)
-@given(st.integers(0, 10_000), st.integers(0, 23), st.integers(0, 23))
-def test_crossover_with_itself_is_identity_and_distance_is_a_semimetric(seed, i, j):
-    pop = wild_run()[0][-1].population
-    a, b = one(pop, i), one(pop, j)
-    key = jax.random.key(seed)
-    child = gn.crossover(key, a, a, WILD)
-    chex.assert_trees_all_equal(child, a)
-    assert float(gn.distance(a, a, WILD)) == 0.0
-    assert float(gn.distance(a, b, WILD)) == pytest.approx(float(gn.distance(b, a, WILD)), abs=1e-6)
+@given(seed=st.integers(0, 2 ** 31 - 1), steps=st.integers(1, 60), structure=st.tuples(probability, probability,
+       probability), scheme=st.sampled_from([0, 1]), link_fraction=st.floats(0.05, 1.0), reenable=probability,
+       activation=probability, disable=probability)
+def test_random_lineages_stay_valid_and_crossover_and_distance_behave(seed, steps, structure, scheme, link_fraction,
+                                                                      reenable, activation, disable):
+    """Genomes bred from scratch under drawn rates (structural ones up to 1 in all, so that columns, hidden
+    slots and links run out), on the CPPN shape so that activations vary too."""
+    total = sum(structure)
+    node, link, delete = (np.asarray(structure) * (0.999 / total if total > 0.999 else 1.0)).tolist()
+    params = WILD.replace(add_node_prob=node, add_link_prob=link, delete_link_prob=delete,
+                          weight_scheme=scheme, initial_link_fraction=link_fraction, reenable_prob=reenable,
+                          activation_mutate_prob=activation, disable_inherit_prob=disable, weight_mutate_prob=0.8)
+    params.validate()
+    pop = _lineage(CPPN)(jax.random.key(seed), params, steps)
+    assert ck.check_population(pop, CPPN, params.weight_range) == []
+    a, b = one(pop, 0), one(pop, 1)
+    same, d_aa, d_ab, d_ba, child = _pair_facts(jax.random.key(seed + 1), a, b, params)
+    chex.assert_trees_all_equal(same, a)
+    assert float(d_aa) == 0.0 and float(d_ab) >= 0.0
+    assert float(d_ab) == pytest.approx(float(d_ba), abs=1e-6)
     # The child of two parents has the fitter parent's structure.
-    c = gn.crossover(key, a, b, WILD)
     for f in ("node_id", "node_kind", "conn_innov", "conn_src", "conn_dst", "conn_valid"):
-        np.testing.assert_array_equal(getattr(c, f), getattr(a, f))
-    assert ck.check_genome(c, CFG, WILD.weight_range) == []
+        np.testing.assert_array_equal(getattr(child, f), getattr(a, f))
+    assert ck.check_genome(child, CPPN, params.weight_range) == []
 
 
 @settings(max_examples=20, deadline=None)
