@@ -344,26 +344,26 @@ def bench_neat_xor(args) -> None:
 
 def bench_generation(args) -> None:
     """Seconds per generation of ``python -m kx.train``'s default config (3v2, NEAT, population 150,
-    30 trials), split into evaluation (build the networks, play the trials) and evolution (``tell``), with
-    the share of executed simulator lane-steps that were live. The first ``--skip`` generations compile
-    and are left out of the medians."""
+    30 trials; or ``--config``), through the run loop every method uses, split into evaluation (build the
+    networks, play the trials) and evolution (``tell``), with the share of executed simulator lane-steps
+    that were live. The first ``--skip`` generations compile and are left out of the medians."""
     import numpy as np
 
     from kx.evolve import config as cfg_lib
+    from kx.evolve import report
     from kx.evolve import run as run_lib
 
-    cfg = cfg_lib.load(None, [f"seed={args.seed}"])
+    cfg = cfg_lib.load(args.config, [f"seed={args.seed}", f"generations={args.generations}"])
     trainer = run_lib.Trainer(cfg)
-    state, best = trainer.init(), -np.inf
-    print(f"default config: {cfg.task} {cfg.method}, population {cfg.population_size}, {cfg.trials} trials; "
-          f"{args.generations} generations, the first {args.skip} left out")
+    print(f"config {args.config or 'configs/neat_3v2.py'}: {cfg.task} {trainer.encoding.describe()}, population "
+          f"{cfg.population_size}, {cfg.trials} trials; {args.generations} generations, the first {args.skip} left out")
     rows = []
-    for g in range(args.generations):
-        res = trainer.step(g, state, best)
-        state, row = res.state, res.row
-        best = row["best_so_far"]
+
+    def log(row):
         rows.append(row)
-        print(run_lib.progress_line(row, args.generations, None), flush=True)
+        print(report.progress_line(row, args.generations, None, trainer.encoding), flush=True)
+
+    run_lib.evolve_in_memory(trainer, log=log)
     body = rows[args.skip:] or rows
     med = lambda k: float(np.median([r[k] for r in body]))  # noqa: E731
     live = sum(r["live_steps"] for r in body) / sum(r["live_steps"] / max(r["live_fraction"], 1e-9) for r in body)
@@ -377,75 +377,71 @@ def bench_generation(args) -> None:
 LEARNING_TEST_SEED = 2026  # the test stream of this seed: the same 1000 test states for every run
 
 
-def bench_learning(args) -> None:
-    """The default config of ``python -m kx.train`` (NEAT, 3v2, 150 genomes x 20 generations of 30 shared
-    trials) over ``--seeds`` seeds, beside the same budget of CMA-ES (evosax, default parameters,
-    population 50, initial step size 1, mean starting at zero, 60 generations of 30 trials) on a linear
-    policy of the same 13/3 layout (:mod:`kx.evolve.cma_es`). Each NEAT run's champion is its validated
-    champion, each CMA-ES run's its final distribution mean; every champion and the hand-coded policies
-    play the same ``--test-trials`` test states (the test stream of seed 2026, which no run trains or
-    validates on) with the same kick noise."""
-    import jax
-    import numpy as np
-
-    from kx.evolve import cma_es, streams
+def _train_and_test(config: str | None, seeds, starts, keys, log_name: str):
+    """Each seed's run of ``config`` through the run loop (no run directory), its validated champion
+    played on ``starts``; returns the test figures, the validated-champion curves and the seconds."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
-    from kx.neat.network import build
+    from kx.evolve.encoding import stack
+
+    test, curves, secs = [], [], []
+    for seed in seeds:
+        t0 = time.perf_counter()
+        trainer = run_lib.Trainer(cfg_lib.load(config, ["gif=false", f"seed={seed}"]))
+        state, rows = run_lib.evolve_in_memory(trainer)
+        f = float(trainer.evaluate(stack([state.champion]), starts, keys.eval).fitness.mean())
+        test.append(f)
+        curves.append([r["best_validation"] for r in rows])
+        secs.append(time.perf_counter() - t0)
+        print(f"{log_name} seed {seed}: test {f:.4f} (validated champion of generation "
+              f"{int(state.champion_generation) + 1}, validation {float(state.champion_validation):.4f}; "
+              f"{secs[-1]:.0f} s)", flush=True)
+    return test, curves, secs
+
+
+def bench_learning(args) -> None:
+    """The default config of ``python -m kx.train`` (NEAT, 3v2, 150 genomes x 20 generations of 30 shared
+    trials) over ``--seeds`` seeds, beside the same budget of CMA-ES (``configs/cma_es_3v2.py``: evosax,
+    default parameters, population 50, initial step size 1, mean starting at zero, 60 generations of 30
+    trials, a linear policy of the same 13/3 layout; :mod:`kx.evolve.cma_es`). Both run through the same
+    run loop, and each run's champion is its validated champion (the generation champion by training
+    fitness that did best on the run's validation states). Every champion and the hand-coded policies
+    play the same ``--test-trials`` test states (the test stream of seed 2026, which no run trains or
+    validates on) with the same kick noise."""
+    import numpy as np
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import streams
     from kx.sim import env
     from kx.sim import evaluate as ev
     from kx.sim.policies import BASELINES
 
     seeds = list(range(args.seeds))
-    base = cfg_lib.load(None, ["gif=false"])
-    exp = cfg_lib.validate(base)
+    configs = {"NEAT": None, "CMA-ES": "configs/cma_es_3v2.py"}
+    loaded = {k: cfg_lib.load(v, ["gif=false"]) for k, v in configs.items()}
+    exp = cfg_lib.validate(loaded["NEAT"])
     sim, params = exp.sim, exp.sim_params
     keys = streams.test(LEARNING_TEST_SEED)
     starts = env.reset_batch(keys.starts, args.test_trials, params, sim)
-    setup = cma_es.CMAESSetup()
-    print(f"learning: {sim.name}, default config ({base.method}, population {base.population_size}, "
-          f"{base.generations} generations, {base.trials} trials: {base.population_size * base.generations} "
-          f"evaluations) against CMA-ES (population {setup.population_size}, {setup.generations} generations, "
-          f"{setup.trials} trials: {setup.population_size * setup.generations} evaluations) on a linear "
-          f"13/3 policy; seeds {seeds[0]}..{seeds[-1]}; champions on {args.test_trials} test states", flush=True)
+    print(f"learning: {sim.name}; " + "; ".join(
+        f"{k} ({c.method}, population {c.population_size}, {c.generations} generations, {c.trials} trials: "
+        f"{c.population_size * c.generations} evaluations)" for k, c in loaded.items())
+        + f"; seeds {seeds[0]}..{seeds[-1]}; validated champions on {args.test_trials} test states", flush=True)
     test = {}
     for name, make in BASELINES.items():
         test[name] = float(ev.evaluate(make(sim), None, starts, params, sim, key=keys.eval).fitness.mean())
     print("hand-coded policies on the test states: " + ", ".join(f"{k} {v:.4f}" for k, v in test.items()))
-
-    neat, neat_time, curves = [], [], []
-    for seed in seeds:
-        t0 = time.perf_counter()
-        cfg = cfg_lib.load(None, ["gif=false", f"seed={seed}"])
-        trainer = run_lib.Trainer(cfg)
-        state, rows = run_lib.evolve_in_memory(trainer)
-        curve = [r["best_validation"] for r in rows]
-        net = jax.tree.map(lambda a: a[None], build(state.champion, trainer.exp.neat))
-        f = float(ev.evaluate(trainer.policy, net, starts, params, sim, key=keys.eval).fitness.mean())
-        neat.append(f)
-        curves.append(curve)
-        neat_time.append(time.perf_counter() - t0)
-        print(f"NEAT seed {seed}: test {f:.4f} (validated champion of generation {int(state.champion_generation) + 1}, "
-              f"validation {float(state.champion_validation):.4f}; {neat_time[-1]:.0f} s)", flush=True)
-    cma, cma_time = [], []
-    for seed in seeds:
-        t0 = time.perf_counter()
-        mean, rows = cma_es.run(seed, sim, params, setup)
-        f = float(cma_es.fitness_on(mean, starts, keys.eval, sim, params).mean())
-        cma.append(f)
-        cma_time.append(time.perf_counter() - t0)
-        print(f"CMA-ES seed {seed}: test {f:.4f} (final step size {rows[-1]['sigma']:.2f}; {cma_time[-1]:.0f} s)",
-              flush=True)
-    curves = np.array(curves)
-    print("NEAT validated champion per generation, mean over seeds: "
-          + " ".join(f"{c:.3f}" for c in curves.mean(axis=0)))
-    for name, vals, secs in (("NEAT", neat, neat_time), ("CMA-ES", cma, cma_time)):
+    results = {name: _train_and_test(path, seeds, starts, keys, name) for name, path in configs.items()}
+    for name, (_, curves, _) in results.items():
+        print(f"{name} validated champion per generation, mean over seeds: "
+              + " ".join(f"{c:.3f}" for c in np.array(curves).mean(axis=0)))
+    for name, (vals, _, secs) in results.items():
         v = np.array(vals)
         print(f"{name}: mean {v.mean():.4f} sd {v.std(ddof=1) if v.size > 1 else 0.0:.4f} "
               f"({v.mean() / test['heuristic']:.1f}x the heuristic); per seed {' '.join(f'{x:.3f}' for x in v)}; "
               f"{np.sum(secs):.0f} s in all (the first run includes compilation)")
-    ratio = float(np.mean(neat) / np.mean(cma))
-    print(f"learning: {np.mean(neat):.4f} fitness (ratio {ratio:.2f} vs cma_es)")
+    neat, cma = np.mean(results["NEAT"][0]), np.mean(results["CMA-ES"][0])
+    print(f"learning: {neat:.4f} fitness (ratio {neat / cma:.2f} vs cma_es)")
 
 
 BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
@@ -460,6 +456,7 @@ def main(argv=None) -> None:
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20, help="neat_generation, generation: generations to run")
+    p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
     p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
     p.add_argument("--devices", type=int, default=0,

@@ -3,11 +3,12 @@
     python -m kx.evaluate runs/neat_3v2-s0-... --task 4v3 --trials 1000
 
 The champion is the run's validated champion: of each generation's best genome by training fitness,
-the one with the best mean on the run's validation states (``kx.evolve.run``). Here it meets
+the one with the best mean on the run's validation states (``kx.evolve.run``), of any method (NEAT,
+CMA-ES, any registered encoding). Here it meets
 ``--trials`` start states of the test stream (:mod:`kx.evolve.streams`), which neither training nor
 validation ever drew, next to the hand-coded baselines on the same states and kick noise. A network
 of the fixed 13/3 layout plays any team size unchanged (zero-shot transfer); a full-layout network fits
-only the team size it was evolved for. Prints the figures and writes them to
+only the team size it was evolved for (refused otherwise). Prints the figures and writes them to
 ``RUN_DIR/eval/<task>-<trials>-seed<seed>.json``.
 """
 
@@ -42,28 +43,22 @@ def main(argv: list[str] | None = None) -> int:
             raise run_lib.RunError(f"{run_dir}: not a kx run directory (no config.json)")
         if not 1 <= args.trials <= 1_000_000:
             raise cfg_lib.ConfigError(f"--trials: allowed an integer in [1, 1000000], got {args.trials}")
-        cfg = cfg_lib.from_dict(json.loads((run_dir / "config.json").read_text()))
+        cfg = cfg_lib.read_run_config(run_dir / "config.json")
         source = cfg_lib.validate(cfg)
         target_cfg = cfg_lib.from_dict(cfg.to_dict())
         if args.task:
             target_cfg.task = args.task
         target = cfg_lib.validate(target_cfg)
-        if (target.neat.n_inputs, target.neat.n_outputs) != (source.neat.n_inputs, source.neat.n_outputs):
-            raise cfg_lib.ConfigError(
-                f"--task: the run's {source.layout}-layout networks have {source.neat.n_inputs} inputs and "
-                f"{source.neat.n_outputs} outputs; {target.sim.name} needs {target.neat.n_inputs} and "
-                f"{target.neat.n_outputs} (full-layout genomes need the transfer mapping of SPEC section 5)")
+        policy = source.encoding.policy_for(target.sim)  # refuses networks that do not fit the task
     except (cfg_lib.ConfigError, run_lib.RunError) as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
 
     runtime.setup()
-    import jax
     import numpy as np
 
     from kx.evolve import streams
-    from kx.evolve.policy import neat_policy
-    from kx.neat.network import build
+    from kx.evolve.encoding import stack
     from kx.sim import env
     from kx.sim import evaluate as ev
     from kx.sim.policies import BASELINES
@@ -71,8 +66,7 @@ def main(argv: list[str] | None = None) -> int:
 
     trainer = run_lib.Trainer(cfg)
     try:
-        step, state, meta = run_lib.restore_checkpoint(run_dir, jax.eval_shape(trainer.init), args.step,
-                                                       neat_config=source.neat)
+        step, state, meta = trainer.restore(run_dir, args.step)
     except run_lib.RunError as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
@@ -82,9 +76,8 @@ def main(argv: list[str] | None = None) -> int:
     seed = cfg.seed if args.seed is None else args.seed
     keys = streams.test(seed)
     starts = env.reset_batch(keys.starts, args.trials, target.sim_params, target.sim)
-    net = jax.tree.map(lambda a: a[None], build(state.champion, source.neat))
-    policy = neat_policy(target.sim, source.neat, source.layout)
-    stats = ev.evaluate(policy, net, starts, target.sim_params, target.sim, key=keys.eval)
+    params = source.encoding.policy_params(stack([state.champion]))
+    stats = ev.evaluate(policy, params, starts, target.sim_params, target.sim, key=keys.eval)
 
     def summary(s) -> dict:
         f = np.asarray(s.fitness).reshape(-1)
@@ -97,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
                 "reasons": {r.name.lower(): float(np.mean(reason == r)) for r in Reason if r != Reason.RUNNING}}
 
     result = {"run_dir": str(run_dir), "checkpoint": step, "generations_done": meta["generation"],
-              "source_task": cfg.task, "task": target.sim.name, "trials": args.trials, "seed": seed,
+              "method": cfg.method, "source_task": cfg.task, "task": target.sim.name, "trials": args.trials,
+              "seed": seed,
               "champion_generation": int(state.champion_generation) + 1,
               "champion_validation": float(state.champion_validation), "champion": summary(stats)}
     if not args.no_baselines:

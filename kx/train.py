@@ -4,22 +4,25 @@ With no arguments it runs the paper's source task (3v2, NEAT, population 150, 30
 generations; ``configs/neat_3v2.py``) into a new run directory under ``runs/``::
 
     python -m kx.train
+    python -m kx.train --config configs/cma_es_3v2.py                 # CMA-ES (evosax) on a fixed network
     python -m kx.train --config configs/neat_4v3.py --config.population_size=50 --workdir runs/small
     python -m kx.train --workdir runs/small --resume              # continue from the last checkpoint
+    python -m kx.train --workdir runs/small --resume --step 10    # ... or from checkpoint 10
     python -m kx.train --workdir runs/small --resume --config.generations=40   # ... and run longer
 
 Overrides name any config field (``--config.seed=3``, ``--config.neat.add_node_prob=0.05``,
-``--config.sim.max_iterations=1000``). An unknown field or a value out of range is refused before
-anything runs; so is an existing run directory, unless ``--resume`` or ``--overwrite``. A resumed run
-must keep every field but ``generations``, ``checkpoint_every``, ``keep_checkpoints``, ``gif`` and
-``gif_frames``; it ends bit for bit where the uninterrupted run would have.
+``--config.sim.max_iterations=1000``); they are parsed by ml_collections' ``config_flags``. An unknown
+field or a value out of range is refused before anything runs; so is an existing run directory, unless
+``--resume`` or ``--overwrite``. A resumed run must keep every field but ``generations``,
+``checkpoint_every``, ``keep_checkpoints``, ``gif`` and ``gif_frames``; it ends bit for bit where the
+uninterrupted run would have. ``--resume --step N`` continues from checkpoint N; the later checkpoints
+are moved to ``abandoned/`` in the run directory, never deleted.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import pathlib
 import sys
 
@@ -33,10 +36,19 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
                    "the run's own config)")
     p.add_argument("--workdir", default=None, help="run directory (default: runs/<config>-s<seed>-<time>)")
     p.add_argument("--resume", action="store_true", help="continue the run in --workdir from its last checkpoint")
+    p.add_argument("--step", type=int, default=None, help="with --resume: continue from this checkpoint")
     p.add_argument("--overwrite", action="store_true", help="delete the run in --workdir and start again")
-    overrides = [a[len("--config."):] for a in argv if a.startswith("--config.")]
-    args = p.parse_args([a for a in argv if not a.startswith("--config.")])
-    return args, overrides
+    overrides, rest, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a.startswith("--config."):
+            if "=" not in a and i + 1 < len(argv):  # --config.seed 3
+                a, i = f"{a}={argv[i + 1]}", i + 1
+            overrides.append(a[len("--config."):])
+        else:
+            rest.append(a)
+        i += 1
+    return p.parse_args(rest), overrides
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,13 +60,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.resume and not args.workdir:
             raise run_lib.RunError("--resume: name the run with --workdir")
+        if args.step is not None and not args.resume:
+            raise run_lib.RunError("--step: only with --resume")
         if args.resume and args.config is None:
             # The run's own config, with this command's overrides (e.g. more generations).
             saved = pathlib.Path(args.workdir) / "config.json"
             if not saved.is_file():
                 raise run_lib.RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
-            cfg = cfg_lib.from_dict(json.loads(saved.read_text()))
-            cfg_lib.apply_overrides(cfg, overrides)
+            cfg = cfg_lib.apply_overrides(cfg_lib.read_run_config(saved), overrides)
             cfg.lock()
         else:
             cfg = cfg_lib.load(args.config, overrides)
@@ -72,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     runtime.setup()
     try:
-        run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite,
+        run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
                       log=lambda s: print(s, flush=True))
     except (cfg_lib.ConfigError, run_lib.RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)

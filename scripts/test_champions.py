@@ -33,15 +33,12 @@ def main(argv=None) -> None:
     p.add_argument("--test-trials", type=int, default=1000)
     args = p.parse_args(argv)
     runtime.setup()
-    import jax
-
     from kx.bench import LEARNING_TEST_SEED
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve import streams
-    from kx.neat.network import build
+    from kx.evolve.encoding import stack
     from kx.sim import env
-    from kx.sim import evaluate as ev
 
     keys = streams.test(LEARNING_TEST_SEED)
     results = []
@@ -52,9 +49,7 @@ def main(argv=None) -> None:
         state, rows = run_lib.evolve_in_memory(trainer)
         curve = [r["best_validation"] for r in rows]
         starts = env.reset_batch(keys.starts, args.test_trials, trainer.exp.sim_params, trainer.exp.sim)
-        net = jax.tree.map(lambda a: a[None], build(state.champion, trainer.exp.neat))
-        f = float(ev.evaluate(trainer.policy, net, starts, trainer.exp.sim_params, trainer.exp.sim,
-                              key=keys.eval).fitness.mean())
+        f = float(trainer.evaluate(stack([state.champion]), starts, keys.eval).fitness.mean())
         results.append(f)
         print(f"seed {seed}: test {f:.4f}, validated champion of generation {int(state.champion_generation) + 1} "
               f"({float(state.champion_validation):.4f} on validation); validated curve every 5 generations "

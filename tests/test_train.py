@@ -1,4 +1,5 @@
-"""``python -m kx.train`` and ``python -m kx.evaluate``: the run directory, resuming after SIGKILL, bad input."""
+"""``python -m kx.train`` and ``python -m kx.evaluate`` for every method (NEAT and CMA-ES): the run
+directory, resuming after SIGKILL, bad input, refused checkpoints and configs."""
 
 import csv
 import json
@@ -17,39 +18,44 @@ from PIL import Image
 
 from kx import evaluate as evaluate_cli
 from kx import train as train_cli
+from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
+from kx.evolve import report, streams
 from kx.evolve import run as run_lib
-from kx.evolve import streams
 from kx.sim import env
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GENERATIONS = 6
-SMALL = ["--config.population_size=20", "--config.trials=4", "--config.sim.max_iterations=300",
-         "--config.gif_frames=30", "--config.checkpoint_every=1", "--config.keep_checkpoints=2"]
+COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_frames=30",
+          "--config.checkpoint_every=1", "--config.keep_checkpoints=2", "--config.validation_trials=40"]
+METHODS = {
+    "neat": ["--config", "configs/neat_3v2.py", "--config.population_size=20", *COMMON],
+    "cma_es": ["--config", "configs/cma_es_3v2.py", "--config.population_size=8", *COMMON],
+}
 
 
-def _train(workdir, *extra, generations=GENERATIONS):
-    return subprocess.run([sys.executable, "-m", "kx.train", "--workdir", str(workdir), *SMALL,
+def _train(workdir, method, *extra, generations=GENERATIONS):
+    return subprocess.run([sys.executable, "-m", "kx.train", "--workdir", str(workdir), *METHODS[method],
                            f"--config.generations={generations}", *extra],
                           cwd=REPO, capture_output=True, text=True, timeout=600)
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("runs") / "a"
-    proc = _train(run_dir)
+@pytest.fixture(scope="module", params=list(METHODS))
+def trained(request, tmp_path_factory):
+    run_dir = tmp_path_factory.mktemp("runs") / request.param
+    proc = _train(run_dir, request.param)
     assert proc.returncode == 0, proc.stderr
-    return run_dir, proc.stdout
+    return run_dir, proc.stdout, request.param
 
 
 def _cfg(run_dir):
-    return cfg_lib.from_dict(json.loads((run_dir / "config.json").read_text()))
+    return cfg_lib.read_run_config(run_dir / "config.json")
 
 
 def _final_state(run_dir, step=GENERATIONS):
     trainer = run_lib.Trainer(_cfg(run_dir))
-    got, state, meta = run_lib.restore_checkpoint(run_dir, jax.eval_shape(trainer.init), step)
-    assert got == step and meta["generation"] == step
+    got, state, meta = trainer.restore(run_dir, step)
+    assert got == step and meta["generation"] == step and int(state.generation) == step
     return state, meta
 
 
@@ -58,19 +64,34 @@ def _rows(run_dir):
         return list(csv.DictReader(f))
 
 
+def _assert_same_state(a, b):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
-    run_dir, out = trained
+    run_dir, out, method = trained
     cfg = json.loads((run_dir / "config.json").read_text())
-    assert cfg["population_size"] == 20 and cfg["task"] == "3v2" and cfg["generations"] == GENERATIONS
+    assert cfg["method"] == method and cfg["task"] == "3v2" and cfg["generations"] == GENERATIONS
     rows = _rows(run_dir)
+    trainer = run_lib.Trainer(_cfg(run_dir))
     assert [int(r["generation"]) for r in rows] == list(range(GENERATIONS))
-    assert set(rows[0]) == set(run_lib.CSV_FIELDS)
+    assert list(rows[0]) == list(report.csv_fields(trainer.encoding))
     best = [float(r["best_fitness"]) for r in rows]
     so_far = [float(r["best_so_far"]) for r in rows]
-    assert so_far == list(np.maximum.accumulate(best))
+    assert so_far == list(np.maximum.accumulate(np.float32(best)).astype(float))
     for r in rows:
         assert 0.0 <= float(r["mean_fitness"]) <= float(r["best_fitness"]) <= 1.0
-        assert 1 <= int(r["n_species"]) <= 10 and 0.0 < float(r["live_fraction"]) <= 1.0
+        assert float(r["best_score"]) == float(r["best_fitness"])  # the fitness objective: score is fitness
+        assert 0.0 < float(r["live_fraction"]) <= 1.0
+        for k in trainer.encoding.metric_fields:
+            assert r[k] != "", k
+    if method == "neat":
+        assert all(1 <= int(r["n_species"]) <= 10 for r in rows)
+        for k in ("node_overflow", "link_overflow", "link_exhausted", "link_capped", "species_overflow"):
+            assert all(int(r[k]) >= 0 for r in rows), k
+    else:
+        assert all(float(r["sigma"]) > 0 for r in rows)
     # each generation's champion replayed on the validation states, next to the hand-coded policies there
     base = json.loads((run_dir / "baselines.json").read_text())
     assert base["trials"] == cfg["validation_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}
@@ -82,52 +103,58 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     assert [int(r["best_validation_generation"]) for r in rows] == [
         int(np.argmax(val[: i + 1])) for i in range(len(val))]
     state, meta = _final_state(run_dir)
+    assert meta["format"] == ckpt.FORMAT and meta["method"] == method
     assert float(state.champion_validation) == np.float32(max(val)) and meta["best_validation"] == max(val)
-    trainer = run_lib.Trainer(_cfg(run_dir))
     assert trainer.validate(state.champion) == float(state.champion_validation)
-    first = trainer.step(0, trainer.init(), -np.inf).row
+    first = trainer.step(trainer.init()).row
     assert first["champion_validation"] == val[0] and first["best_fitness"] == best[0]
-    for k in ("node_overflow", "link_overflow", "link_exhausted", "species_overflow"):
-        assert all(int(r[k]) >= 0 for r in rows), k
     with Image.open(run_dir / "progress.png") as im:
         assert im.format == "PNG" and im.size[0] > 300
     with Image.open(run_dir / "champion.gif") as im:
         assert im.format == "GIF" and im.n_frames > 1
+    with Image.open(run_dir / "champion.png") as im:
+        assert im.format == "PNG" and im.size[0] > 200
     # the last 2 checkpoints are kept, and the one of the generation whose champion validated best
-    steps = sorted(int(p.name) for p in (run_dir / "checkpoints").iterdir() if p.name.isdigit())
-    best_step = int(np.argmax(val)) + 1
-    assert steps == sorted({GENERATIONS - 1, GENERATIONS, best_step})
+    steps = ckpt.steps(run_dir)
+    assert steps == sorted({GENERATIONS - 1, GENERATIONS, int(np.argmax(val)) + 1})
     lines = [line for line in out.splitlines() if line.startswith("gen ")]
-    assert len(lines) == GENERATIONS and "ETA" in lines[-1] and "species" in lines[-1] and "s/gen" in lines[-1]
+    assert len(lines) == GENERATIONS and "ETA" in lines[-1] and "s/gen" in lines[-1]
+    assert ("species" if method == "neat" else "sigma") in lines[-1]
 
 
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
-    reference, _ = trained
+    reference, _, method = trained
     run_dir = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "kx.train", "--workdir", str(run_dir), *SMALL, f"--config.generations={GENERATIONS}"]
+    # far more generations than the reference: the run cannot end before the kill, however fast the machine
+    cmd = [sys.executable, "-m", "kx.train", "--workdir", str(run_dir), *METHODS[method], "--config.generations=100000"]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ckpts = run_dir / "checkpoints"
     deadline = time.time() + 600
     while time.time() < deadline and proc.poll() is None:
-        if ckpts.is_dir() and any(p.name.isdigit() and int(p.name) >= 2 for p in ckpts.iterdir()):
+        if any(s >= 2 for s in ckpt.steps(run_dir)):
             break
         time.sleep(0.01)
     assert proc.poll() is None, "the run ended before it could be killed"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
-    assert not (ckpts / str(GENERATIONS)).exists()
-    resumed = subprocess.run([sys.executable, "-m", "kx.train", "--workdir", str(run_dir), "--resume"],
-                             cwd=REPO, capture_output=True, text=True, timeout=600)
+    have = ckpt.steps(run_dir)
+    assert 2 in have and max(have) < 100000
+    # continue from checkpoint 2, whatever was written after it, and stop where the reference stops
+    resumed = subprocess.run([sys.executable, "-m", "kx.train", "--workdir", str(run_dir), "--resume", "--step", "2",
+                              f"--config.generations={GENERATIONS}"], cwd=REPO, capture_output=True, text=True,
+                             timeout=600)
     assert resumed.returncode == 0, resumed.stderr
-    assert "resuming" in resumed.stdout
+    assert "resuming" in resumed.stdout and "after generation 2" in resumed.stdout
     a, meta_a = _final_state(reference)
     b, meta_b = _final_state(run_dir)
     assert meta_a == meta_b
-    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
-        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
-    drop = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in drop} for r in rows]  # noqa: E731
+    _assert_same_state(a, b)
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in report.TIMING_FIELDS} for r in rows]  # noqa: E731
     assert strip(_rows(run_dir)) == strip(_rows(reference))
+    # checkpoints written after 2 by the killed run were set aside, not deleted
+    later = [s for s in have if s > 2]
+    if later:
+        moved = sorted(int(p.name) for p in (run_dir / "abandoned").glob("*/checkpoints/*"))
+        assert moved == later
 
 
 def _err(capsys, argv, cli=train_cli):
@@ -143,91 +170,169 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert "neat.nope: no such config field" in _err(capsys, w + ["--config.neat.nope=1"])
     err = _err(capsys, w + ["--config.population_size=1"])
     assert "population_size: allowed an integer in [2, 100000], got 1" in err
-    assert "trials: allowed an integer" in _err(capsys, w + ["--config.trials=many"])
+    assert "trials: allowed an integer, got 'many'" in _err(capsys, w + ["--config.trials=many"])
+    assert "trials: allowed an integer, got '2.5'" in _err(capsys, w + ["--config.trials", "2.5"])
     assert "task:" in _err(capsys, w + ["--config.task=9v2"])
-    assert "method: allowed one of ('neat',)" in _err(capsys, w + ["--config.method=hyperneat"])
+    assert "method: allowed one of ('neat', 'cma_es'" in _err(capsys, w + ["--config.method=hyperneat"])
+    assert "objective: allowed one of ('fitness',)" in _err(capsys, w + ["--config.objective=novelty"])
     assert "layout:" in _err(capsys, w + ["--config.layout=bev"])
     assert "neat.add_node_prob" in _err(capsys, w + ["--config.neat.add_node_prob=1.5"])
+    assert "neat.max_add_links: allowed an integer in [0, population_size" in _err(
+        capsys, w + ["--config.neat.max_add_links=151"])
     assert "sim.max_iterations" in _err(capsys, w + ["--config.sim.max_iterations=0"])
     assert "--config: no config file" in _err(capsys, w + ["--config", "configs/nope.py"])
+    assert "--step: only with --resume" in _err(capsys, w + ["--step", "3"])
+    cma = ["--config", "configs/cma_es_3v2.py"]
+    assert "cma_es.sigma_init: allowed a number in (0, 10000]" in _err(
+        capsys, w + cma + ["--config.cma_es.sigma_init=0"])
+    assert "cma_es.hidden: allowed an integer in [0, 256]" in _err(capsys, w + cma + ["--config.cma_es.hidden=-1"])
+    assert "neat.add_node_prob: no such config field" in _err(capsys, w + cma + ["--config.neat.add_node_prob=0.1"])
     assert not (tmp_path / "x").exists()
 
 
 def test_a_relative_workdir_works(capsys, trained, tmp_path, monkeypatch):
     # orbax needs absolute paths; the run resolves a relative --workdir itself
-    src, _ = trained
+    src, _, _ = trained
     shutil.copytree(src, tmp_path / "rel")
     monkeypatch.chdir(tmp_path)
     assert train_cli.main(["--workdir", "rel", "--resume", "--config.generations=7", "--config.gif=false"]) == 0
     assert int(_rows(tmp_path / "rel")[-1]["generation"]) == 6
-    assert (tmp_path / "rel" / "checkpoints" / "7").is_dir()
+    assert 7 in ckpt.steps(tmp_path / "rel")
 
 
 def test_existing_run_directories_are_never_overwritten_unasked(capsys, trained, tmp_path):
-    run_dir, _ = trained
+    run_dir, _, method = trained
     before = (run_dir / "metrics.csv").read_bytes()
-    assert "exists and is not empty" in _err(capsys, ["--workdir", str(run_dir), *SMALL])
+    assert "exists and is not empty" in _err(capsys, ["--workdir", str(run_dir), *METHODS[method]])
     assert "holds no run to resume" in _err(capsys, ["--workdir", str(tmp_path / "none"), "--resume"])
     stranger = tmp_path / "stranger"
     stranger.mkdir()
     (stranger / "notes.txt").write_text("mine")
-    assert "not a kx run directory" in _err(capsys, ["--workdir", str(stranger), "--overwrite", *SMALL])
+    assert "not a kx run directory" in _err(capsys, ["--workdir", str(stranger), "--overwrite", *METHODS[method]])
     assert (stranger / "notes.txt").read_text() == "mine"
     # resuming with a field that changes what the run computes
-    assert "population_size = 20 in the checkpoint, 30 now" in _err(
-        capsys, ["--workdir", str(run_dir), "--resume", "--config.population_size=30"])
+    assert "trials = 4 in the checkpoint, 5 now" in _err(
+        capsys, ["--workdir", str(run_dir), "--resume", "--config.trials=5"])
     assert (run_dir / "metrics.csv").read_bytes() == before
 
 
+def _copy(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _edit_config(run_dir, fn):
+    d = json.loads((run_dir / "config.json").read_text())
+    fn(d)
+    (run_dir / "config.json").write_text(json.dumps(d))
+
+
 def test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason(capsys, trained, tmp_path):
-    src, _ = trained
-    corrupt = tmp_path / "corrupt"
-    shutil.copytree(src, corrupt)
-    for f in (corrupt / "checkpoints" / str(GENERATIONS) / "state").rglob("*"):
+    src, _, method = trained
+    resume = lambda d, *a: ["--workdir", str(d), "--resume", "--config.generations=8", *a]  # noqa: E731
+    # a damaged latest checkpoint is reported as such, with the earlier ones to continue from
+    damaged = _copy(src, tmp_path / "damaged")
+    for f in (damaged / "checkpoints" / str(GENERATIONS) / "state").rglob("*"):
         if f.is_file():
             f.write_bytes(b"\x00garbage" * 8)
-    err = _err(capsys, ["--workdir", str(corrupt), "--resume", "--config.generations=8"])
-    assert f"checkpoint {GENERATIONS}" in err and "corrupt" in err
+    err = _err(capsys, resume(damaged))
+    assert f"checkpoint {GENERATIONS}" in err and "damaged" in err
+    assert f"--resume --step {GENERATIONS - 1}" in err
+    assert "no checkpoint 3 (there are" in _err(capsys, resume(damaged, "--step", "3"))
+    # ... and --step continues from an earlier one, setting the damaged one aside
+    assert train_cli.main(resume(damaged, "--step", str(GENERATIONS - 1), "--config.gif=false")) == 0
+    capsys.readouterr()
+    assert max(ckpt.steps(damaged)) == 8
+    assert [p.name for p in (damaged / "abandoned").glob("*/checkpoints/*")] == [str(GENERATIONS)]
     # a checkpoint written by another config (its own metadata says so)
-    other = tmp_path / "other"
-    shutil.copytree(src, other)
-    cfg = json.loads((other / "config.json").read_text())
-    cfg["seed"] = 7
-    (other / "config.json").write_text(json.dumps(cfg))
-    err = _err(capsys, ["--workdir", str(other), "--resume", "--config.generations=8"])
-    assert "written by another config: seed = 0 in the checkpoint, 7 now" in err
-    # a readable checkpoint of the right shapes whose genomes are broken (a link to a missing node)
-    broken = tmp_path / "broken"
-    shutil.copytree(src, broken)
-    step, state, meta = run_lib.restore_checkpoint(broken, jax.eval_shape(run_lib.Trainer(
-        cfg_lib.from_dict(json.loads((src / "config.json").read_text()))).init))
-    col = int(np.argmax(np.asarray(state.neat.population.conn_valid[3])))  # a column genome 3 uses
-    state = state.replace(neat=state.neat.replace(population=state.neat.population.replace(
-        conn_src=state.neat.population.conn_src.at[3, col].set(999))))
-    shutil.rmtree(broken / "checkpoints" / str(step))
-    run_lib.save_checkpoint(run_lib._manager(broken / "checkpoints", 3), step, state, meta)
-    err = _err(capsys, ["--workdir", str(broken), "--resume", "--config.generations=8"])
-    assert f"checkpoint {step}" in err and "invalid genomes" in err and "genome 3: link 999->" in err
+    other = _copy(src, tmp_path / "other")
+    _edit_config(other, lambda d: d.update(seed=7))
+    assert "written by another config: seed = 0 in the checkpoint, 7 now" in _err(capsys, resume(other))
+    # a checkpoint of an older format (the first kx wrote no format into its metadata)
+    old = _copy(src, tmp_path / "old")
+    trainer = run_lib.Trainer(_cfg(src))
+    step, state, meta = trainer.restore(old)
+    shutil.rmtree(old / "checkpoints" / str(step))
+    mgr = ckpt.manager(old / "checkpoints", 3)
+    import orbax.checkpoint as ocp
+    mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(
+        {k: v for k, v in meta.items() if k != "format"})), metrics={"champion_validation": 0.0})
+    mgr.wait_until_finished()
+    assert "checkpoint format 1; this kx reads format 2 (written by an older kx)" in _err(capsys, resume(old))
+    # a checkpoint of another method, read with this config's method
+    other_method = "cma_es" if method == "neat" else "neat"
+    foreign = run_lib.Trainer(cfg_lib.load(REPO / METHODS[other_method][1], [
+        METHODS[other_method][2].removeprefix("--config."), "trials=4"]))
+    with pytest.raises(run_lib.RunError, match=f"holds a '{method}' run state; this config's method is "
+                                               f"'{other_method}'"):
+        foreign.restore(src)
+    if method == "neat":  # readable, of the right shapes, but genomes broken (a link to a missing node)
+        broken = _copy(src, tmp_path / "broken")
+        step, state, meta = trainer.restore(broken)
+        pop = state.learner.population
+        col = int(np.argmax(np.asarray(pop.conn_valid[3])))  # a column genome 3 uses
+        state = state.replace(learner=state.learner.replace(population=pop.replace(
+            conn_src=pop.conn_src.at[3, col].set(999))))
+        shutil.rmtree(broken / "checkpoints" / str(step))
+        ckpt.save(ckpt.manager(broken / "checkpoints", 3), step, state, {k: v for k, v in meta.items()
+                                                                         if k != "format"})
+        err = _err(capsys, resume(broken))
+        assert f"checkpoint {step}" in err and "invalid genotypes" in err and "genome 3: link 999->" in err
+
+
+def test_corrupt_or_foreign_config_json_is_refused_with_the_reason(capsys, trained, tmp_path):
+    src, _, _ = trained
+    cases = {
+        "not JSON": (lambda p: p.write_text('{"task": "3v2", '), "corrupt, not readable as JSON"),
+        "a list": (lambda p: p.write_text("[1, 2]"), "expected a JSON object of config fields, got list"),
+        "mis-nested": (lambda p: _edit_config(p.parent, lambda d: d.update(sim=3)), "sim: a section, not a value"),
+        "nested wrongly": (lambda p: _edit_config(p.parent, lambda d: d.update(trials={"n": 4})),
+                           "trials.n: not a field of this kx configs"),
+        "older kx": (lambda p: _edit_config(p.parent, lambda d: (d.pop("validation_trials"),
+                                                                 d.update(heldout_trials=50))),
+                     "heldout_trials: not a field of this kx configs"),
+        "missing field": (lambda p: _edit_config(p.parent, lambda d: d.pop("objective")), "objective: missing"),
+        "bad type": (lambda p: _edit_config(p.parent, lambda d: d.update(trials="four")),
+                     "trials: 'four' does not fit"),
+        "unknown method": (lambda p: _edit_config(p.parent, lambda d: d.update(method="nope")),
+                           "method: allowed one of"),
+    }
+    for i, (name, (damage, expected)) in enumerate(cases.items()):
+        d = _copy(src, tmp_path / f"c{i}")
+        damage(d / "config.json")
+        err = _err(capsys, ["--workdir", str(d), "--resume"])
+        assert expected in err and "config.json" in err, (name, err)
+        err = _err(capsys, [str(d), "--trials", "4"], evaluate_cli)
+        assert expected in err, (name, err)
 
 
 def test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task(capsys, trained):
-    run_dir, _ = trained
+    run_dir, _, method = trained
     assert evaluate_cli.main([str(run_dir), "--task", "4v3", "--trials", "12", "--no-baselines"]) == 0
     out = json.loads((run_dir / "eval" / "4v3-12-seed0.json").read_text())
     assert out["task"] == "4v3" and out["checkpoint"] == GENERATIONS and out["trials"] == 12
+    assert out["method"] == method
     assert 0.0 < out["champion"]["mean_fitness"] <= 1.0
     assert abs(sum(out["champion"]["reasons"].values()) - 1.0) < 1e-6
     state, _ = _final_state(run_dir)
     assert out["champion_validation"] == float(state.champion_validation)
     assert out["champion_generation"] == int(state.champion_generation) + 1
+    # on the run's own task, the champion's test figure is the one the trainer's evaluator gives
+    assert evaluate_cli.main([str(run_dir), "--trials", "12", "--no-baselines"]) == 0
+    own = json.loads((run_dir / "eval" / "3v2-12-seed0.json").read_text())
+    trainer = run_lib.Trainer(_cfg(run_dir))
+    keys = streams.test(0)
+    starts = env.reset_batch(keys.starts, 12, trainer.exp.sim_params, trainer.exp.sim)
+    from kx.evolve.encoding import stack
+    stats = trainer.evaluate(stack([state.champion]), starts, keys.eval)
+    assert own["champion"]["mean_fitness"] == float(np.asarray(stats.fitness).mean())
     capsys.readouterr()
     assert "--trials: allowed" in _err(capsys, [str(run_dir), "--trials", "0"], evaluate_cli)
     assert "task:" in _err(capsys, [str(run_dir), "--task", "2v2"], evaluate_cli)
 
 
 def test_training_validation_and_test_states_are_disjoint_streams(tmp_path):
-    overrides = [s.removeprefix("--config.") for s in SMALL]
-    tr = run_lib.Trainer(cfg_lib.load(None, overrides + ["validation_trials=64"]))
+    tr = run_lib.Trainer(cfg_lib.load(None, ["population_size=20", "trials=4", "validation_trials=64"]))
     cells = lambda s: {c.tobytes() for c in np.concatenate(  # noqa: E731
         [np.asarray(a) for a in (s.keeper_x, s.keeper_y, s.taker_x, s.taker_y, s.holder[None])]).T}
     sim, params = tr.exp.sim, tr.exp.sim_params
@@ -236,19 +341,37 @@ def test_training_validation_and_test_states_are_disjoint_streams(tmp_path):
     test = cells(env.reset_batch(streams.test(0).starts, 64, params, sim))
     assert len(val) == 64 and len(test) == 64 and len(train) == 20 * 64
     assert not (val & train) and not (test & train) and not (val & test)
-    # no key of one use is the key of another (split(k, n)[i] == fold_in(k, i) under the default RNG)
-    keys = [streams.training(0, 0).starts, streams.training(0, 0).eval, streams.validation(0).starts,
-            streams.validation(0).eval, streams.test(0).starts, streams.test(0).eval, streams.learner_init(0),
-            streams.learner_step(0, 0)]
-    trial_keys = [jax.random.split(streams.training(0, 0).starts, 64)[i] for i in range(64)]
-    data = {tuple(np.asarray(jax.random.key_data(k)).ravel()) for k in keys + trial_keys}
-    assert len(data) == len(keys) + len(trial_keys)
+    # no key of one use is the key of another (split(k, n)[i] == fold_in(k, i) under the default RNG):
+    # every stream's keys for a few generations, the evaluator's two derived keys, and the trials' reset keys
+    fold = jax.random.fold_in
+    keys = [streams.learner_init(0)]
+    for seed in (0, 1):
+        for g in range(3):
+            t = streams.training(seed, g)
+            keys += [t.starts, t.eval, fold(t.eval, 0), fold(t.eval, 1), streams.learner_step(seed, g),
+                     streams.learner_ask(seed, g)]
+            keys += list(jax.random.split(t.starts, 8))
+        for t in (streams.validation(seed), streams.test(seed)):
+            keys += [t.starts, t.eval, fold(t.eval, 0), fold(t.eval, 1), *jax.random.split(t.starts, 8)]
+    data = {tuple(np.asarray(jax.random.key_data(k)).ravel()) for k in keys}
+    assert len(data) == len(keys)
     # the validation replay of a genome is a pure function of the genome and the run's seed
-    genome = jax.tree.map(lambda a: a[0], tr.init().neat.population)
+    genome = jax.tree.map(lambda a: a[0], tr.init().learner.population)
     assert tr.validate(genome) == tr.validate(genome) == run_lib.Trainer(tr.cfg).validate(genome)
     assert "validation_trials: allowed an integer in [1, 100000]" in str(
         pytest.raises(cfg_lib.ConfigError, cfg_lib.validate, cfg_lib.load(None, ["validation_trials=0"])).value)
-    row = tr.step(0, tr.init(), -np.inf).row
-    assert "validation" in run_lib.progress_line(row, 1, None)
-    run_lib.plot_progress([row], tmp_path / "p.png", "one")
+    row = tr.step(tr.init()).row
+    assert "validation" in report.progress_line(row, 1, None, tr.encoding)
+    report.plot_progress([row], tmp_path / "p.png", "one", lower=tr.encoding.plot_field)
     assert (tmp_path / "p.png").stat().st_size > 1000
+
+
+def test_overrides_go_through_config_flags_with_tuples_and_nested_fields():
+    cfg = cfg_lib.apply_overrides(cfg_lib.base_config(), ["sim.max_iterations=123", "gif=false", "seed=5",
+                                                          "neat.weight_init_range=2"])
+    assert cfg.sim.max_iterations == 123 and cfg.gif is False and cfg.seed == 5
+    assert isinstance(cfg.neat.weight_init_range, float) and cfg.neat.weight_init_range == 2.0
+    import ml_collections
+    c = ml_collections.ConfigDict({"shape": (1, 2), "inner": {"x": 1.0}})
+    c = cfg_lib.apply_overrides(c, ["shape=(3, 4, 5)", "inner.x=0.5"])
+    assert c.shape == (3, 4, 5) and c.inner.x == 0.5

@@ -1,73 +1,186 @@
-"""CMA-ES (evosax) on a fixed linear keep-away policy: the standard-optimiser anchor of ``kx.bench learning``.
+"""CMA-ES as an encoding of the run loop: ``method = "cma_es"``, a fixed-topology network evolved by evosax.
 
-Hansen's CMA-ES as evosax 0.3.2 implements it, with its default parameters, on the linear policy
-:func:`kx.sim.policies.linear_policy` of the paper's 13-input / 3-output layout (42 values: 13 x 3
-weights and 3 biases). The set-up is fixed so that the anchor cannot drift: population 50, initial step
-size 1.0, mean starting at zero, 60 generations of 30 shared training trials (3000 evaluations of 30
-trials: the budget of the paper's source run, 150 genomes x 20 generations). Each generation draws its
-trials from the run's training stream (:mod:`kx.evolve.streams`), like a NEAT run of the same seed. The
-champion is the distribution mean after the last generation.
+Hansen's CMA-ES as evosax 0.3.2 implements it, with its default parameters (weights, learning rates,
+damping), searching the flat parameter vector of a fixed network on the same observation layouts as
+NEAT: ``fixed`` (13 inputs, 3 outputs, any team size) or ``full`` (4K + 2T - 3 inputs, K outputs). With
+``cma_es.hidden = 0`` (the default) the network is linear, ``outputs = x W + b`` (42 values on the
+fixed layout: 13 x 3 weights row-major by input, then 3 biases, the layout of
+:func:`kx.sim.policies.linear_params`); with ``hidden = H`` it has one tanh layer of H units
+(``W1 [in, H]``, ``b1 [H]``, ``W2 [H, out]``, ``b2 [out]``, in that order). The holder acts on the
+largest output (ties to hold).
 
-evosax is an optional dependency (``pip install -e '.[bench]'``).
+The population's parameter vectors go to the evaluator as one table ``[P, D]`` that every episode lane
+shares, each lane carrying its row index (:mod:`kx.sim.evaluate`'s shared mode).
+
+Config section ``cma_es``: ``sigma_init`` (the initial step size; the mean starts at zero) and
+``hidden``. Its configs (``configs/cma_es_3v2.py`` ...) use population 50 and 60 generations, the
+evaluation budget of the paper's NEAT source run (150 x 20 = 3000 individuals of 30 trials).
+evosax minimises; kx hands it the negated selection score.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import functools
+import pathlib
 
 import jax
 import jax.numpy as jnp
+import ml_collections
 import numpy as np
 
-from kx.evolve import streams
-from kx.sim import env, observe, policies
-from kx.sim import evaluate as ev
-from kx.sim.types import KeepAwayConfig, KeepAwayParams
+from kx.evolve.config import ConfigError
+from kx.evolve.encoding import Encoding, register
+from kx.sim import observe
+from kx.sim.policies import Policy
+from kx.sim.types import KeepAwayConfig
 
 
-@dataclasses.dataclass(frozen=True)
-class CMAESSetup:
-    population_size: int = 50
-    generations: int = 60
-    trials: int = 30
-    sigma: float = 1.0
-    layout: str = "fixed"
+def _strong(tree):
+    return jax.tree.map(lambda a: jax.lax.convert_element_type(a, jnp.asarray(a).dtype), tree)
 
 
-def run(seed: int, sim: KeepAwayConfig, sim_params: KeepAwayParams, setup: CMAESSetup = CMAESSetup(),
-        log=None) -> tuple[jax.Array, list[dict]]:
-    """One CMA-ES run; returns the final distribution mean ``[n_params]`` and one row per generation
-    (best and mean training fitness, step size)."""
-    try:
-        from evosax.algorithms import CMA_ES
-    except ImportError as e:  # pragma: no cover - depends on the environment
-        raise SystemExit("CMA-ES needs evosax: pip install -e '.[bench]'") from e
-    n_in, n_out = observe.n_inputs(setup.layout, sim), observe.n_outputs(setup.layout, sim)
-    dim = n_in * n_out + n_out
-    es = CMA_ES(population_size=setup.population_size, solution=jnp.zeros(dim))
-    params = es.default_params.replace(std_init=jnp.asarray(setup.sigma))
-    state = es.init(streams.learner_init(seed), jnp.zeros(dim), params)
-    policy = policies.linear_policy(sim, setup.layout)
-    rows = []
-    for g in range(setup.generations):
-        k_ask, k_tell = jax.random.split(streams.learner_step(seed, g))
-        population, state = es.ask(k_ask, state, params)
-        keys = streams.training(seed, g)
-        starts = env.reset_batch(keys.starts, setup.trials, sim_params, sim)
-        stats = ev.evaluate(policy, policies.linear_params(population, sim, setup.layout), starts, sim_params, sim,
-                            key=keys.eval)
-        fitness = stats.fitness.mean(axis=1)
-        state, _ = es.tell(k_tell, population, -fitness, state, params)  # evosax minimises
-        rows.append({"generation": g, "best_fitness": float(fitness.max()), "mean_fitness": float(fitness.mean()),
-                     "sigma": float(state.std)})
-        if log is not None:
-            log(rows[-1])
-    return state.mean, rows
+def n_params(n_in: int, n_out: int, hidden: int) -> int:
+    return n_in * n_out + n_out if hidden == 0 else n_in * hidden + hidden + hidden * n_out + n_out
 
 
-def fitness_on(mean: jax.Array, starts, keys_eval: jax.Array, sim: KeepAwayConfig, sim_params: KeepAwayParams,
-               layout: str = "fixed") -> np.ndarray:
-    """Per-trial fitness ``[T]`` of the linear policy ``mean`` on ``starts``."""
-    stats = ev.evaluate(policies.linear_policy(sim, layout), policies.linear_params(mean[None], sim, layout),
-                        starts, sim_params, sim, key=keys_eval)
-    return np.asarray(stats.fitness)[0]
+def _unflatten(theta: jax.Array, n_in: int, n_out: int, hidden: int) -> list[jax.Array]:
+    """``theta [D, *B]`` (batch-last) as the network's arrays, batch-last."""
+    b = theta.shape[1:]
+    if hidden == 0:
+        return [theta[: n_in * n_out].reshape((n_in, n_out) + b), theta[n_in * n_out:]]
+    o = 0
+    out = []
+    for shape in ((n_in, hidden), (hidden,), (hidden, n_out), (n_out,)):
+        size = int(np.prod(shape))
+        out.append(theta[o:o + size].reshape(shape + b))
+        o += size
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def network_policy(sim: KeepAwayConfig, layout: str, hidden: int) -> Policy:
+    """The fixed network of flat parameter vectors, as a shared-table policy: ``params.table [G, D]``,
+    ``params.index [*B]`` the row of each lane."""
+    obs_fn = {"fixed": observe.fixed_obs, "full": observe.full_obs}[layout]
+    n_in, n_out = observe.n_inputs(layout, sim), observe.n_outputs(layout, sim)
+
+    def apply(params, state, key):
+        theta = jnp.moveaxis(jnp.take(params.table, params.index, axis=0), -1, 0)  # [D, *B]
+        x = obs_fn(state, sim)  # [in, *B]
+        arrays = _unflatten(theta, n_in, n_out, hidden)
+        if hidden == 0:
+            w, out = arrays
+            for i in range(n_in):  # unrolled: a short contraction stays elementwise and fuses
+                out = out + x[i][None] * w[i]
+        else:
+            w1, b1, w2, b2 = arrays
+            hid = jnp.tanh(jnp.sum(x[:, None] * w1, axis=0) + b1)
+            out = jnp.sum(hid[:, None] * w2, axis=0) + b2
+        return observe.decode_ranked(out, state, sim)
+
+    return Policy(f"cma_es-{layout}-h{hidden}", apply, shared=True)
+
+
+@register
+class CMAESEncoding(Encoding):
+    name = "cma_es"
+    section = "cma_es"
+    layouts = ("fixed", "full")
+    metric_fields = ("sigma", "mean_norm")
+    plot_field = "sigma"
+
+    @classmethod
+    def default_config(cls) -> ml_collections.ConfigDict:
+        return ml_collections.ConfigDict({"sigma_init": 1.0, "hidden": 0})
+
+    @classmethod
+    def defaults(cls) -> dict:
+        return {"population_size": 50, "generations": 60}
+
+    def __init__(self, cfg, sim, sim_params):
+        super().__init__(cfg, sim, sim_params)
+        c = cfg.cma_es
+        if not (isinstance(c.sigma_init, float) and 0.0 < c.sigma_init <= 1e4):
+            raise ConfigError(f"cma_es.sigma_init: allowed a number in (0, 10000], got {c.sigma_init!r}")
+        if not (isinstance(c.hidden, int) and not isinstance(c.hidden, bool) and 0 <= c.hidden <= 256):
+            raise ConfigError(f"cma_es.hidden: allowed an integer in [0, 256] (0: a linear network), got {c.hidden!r}")
+        if cfg.population_size < 4:
+            raise ConfigError(f"population_size: allowed at least 4 for cma_es, got {cfg.population_size}")
+        try:
+            from evosax.algorithms import CMA_ES
+        except ImportError as e:  # pragma: no cover - evosax is a dependency
+            raise ConfigError("method: cma_es needs evosax (pip install evosax==0.3.2)") from e
+        self.hidden = c.hidden
+        self.n_in, self.n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
+        self.dim = n_params(self.n_in, self.n_out, self.hidden)
+        self.es = CMA_ES(population_size=cfg.population_size, solution=jnp.zeros(self.dim))
+        self.es_params = self.es.default_params.replace(std_init=jnp.asarray(c.sigma_init, jnp.float32))
+        # evosax leaves some fields weakly typed; strong types keep one compiled program per function
+        # (and equal to what a restored checkpoint holds)
+        self._init = jax.jit(lambda key: _strong(self.es.init(key, jnp.zeros(self.dim), self.es_params)))
+        self._ask = jax.jit(lambda key, state: _strong(self.es.ask(key, state, self.es_params)))
+        self._tell = jax.jit(lambda key, pop, score, state: _strong(
+            self.es.tell(key, pop, -score, state, self.es_params)))
+
+    def init(self, key):
+        return self._init(key)
+
+    def ask(self, key, state):
+        return self._ask(key, state)
+
+    def tell(self, key, population, score, fitness, state):
+        state, _ = self._tell(key, population, jnp.asarray(score, jnp.float32), state)
+        return state, {"sigma": state.std, "mean_norm": jnp.linalg.norm(state.mean)}
+
+    def policy_for(self, sim):
+        n_in, n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
+        if (n_in, n_out) != (self.n_in, self.n_out):
+            raise ConfigError(f"task: the run's {self.layout}-layout networks have {self.n_in} inputs and "
+                              f"{self.n_out} outputs; {sim.name} needs {n_in} and {n_out}")
+        return network_policy(sim, self.layout, self.hidden)
+
+    def policy_params(self, population):
+        return population
+
+    def check(self, state, champion):
+        errs = []
+        for name in ("mean", "std", "C", "p_std", "p_c"):
+            if not np.all(np.isfinite(np.asarray(getattr(state, name)))):
+                errs.append(f"CMA-ES {name} holds non-finite values")
+        if not float(state.std) > 0:
+            errs.append(f"CMA-ES step size {float(state.std)} is not positive")
+        if champion is not None and not np.all(np.isfinite(np.asarray(champion))):
+            errs.append("champion: non-finite parameters")
+        return errs
+
+    def describe(self) -> str:
+        net = "linear" if self.hidden == 0 else f"{self.hidden} tanh hidden units"
+        return (f"cma_es ({self.layout} layout: {self.n_in} inputs, {self.n_out} outputs, {net}, "
+                f"{self.dim} parameters)")
+
+    def progress(self, row) -> str:
+        return f"sigma {float(row['sigma']):.3f}"
+
+    def draw(self, genotype, path: pathlib.Path):
+        """The champion's weight matrices as heat maps (inputs by rows, outputs by columns)."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        arrays = [np.asarray(a) for a in _unflatten(jnp.asarray(genotype), self.n_in, self.n_out, self.hidden)]
+        mats = [arrays[0]] if self.hidden == 0 else [arrays[0], arrays[2]]
+        biases = [arrays[1]] if self.hidden == 0 else [arrays[1], arrays[3]]
+        fig, axes = plt.subplots(1, len(mats), figsize=(4 + 3 * len(mats), 5), squeeze=False)
+        vmax = max(float(np.abs(np.asarray(genotype)).max()), 1e-6)
+        for ax, m, b, name in zip(axes[0], mats, biases, ("inputs -> " + ("outputs" if self.hidden == 0 else "hidden"),
+                                                           "hidden -> outputs")):
+            im = ax.imshow(np.vstack([m, b[None]]), cmap="RdBu", vmin=-vmax, vmax=vmax, aspect="auto")
+            ax.set_title(name)
+            ax.set_ylabel("input (last row: bias)")
+            ax.set_xlabel("unit")
+        fig.colorbar(im, ax=axes[0].tolist())
+        path = pathlib.Path(path)
+        fig.savefig(path, dpi=100, bbox_inches="tight")
+        plt.close(fig)
+        return path

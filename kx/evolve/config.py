@@ -1,30 +1,32 @@
 """Experiment configs: ``ml_collections.ConfigDict`` files under ``configs/``, checked before any compute.
 
-A config file defines ``get_config()`` and usually starts from :func:`base_config` (the paper's source
-task: 3v2, NEAT, population 150, 30 trials, 20 generations). ``kx.train`` loads one with
-:func:`load` and applies command-line overrides (``--config.population_size=50``,
-``--config.neat.add_node_prob=0.05``); :func:`validate` refuses an unknown field or a value out of
-range with a message that names the field and what it allows.
+A config file defines ``get_config()`` and usually starts from :func:`base_config`, which gives the run
+loop's fields and the config section of one method (``base_config("cma_es")`` ...; the default is the
+paper's source task with NEAT: 3v2, population 150, 30 trials, 20 generations). ``kx.train`` loads one
+with :func:`load`; command-line overrides (``--config.population_size=50``,
+``--config.neat.add_node_prob=0.05``, tuples and nested fields too) go through ml_collections' own flag
+parsing (``config_flags``, as the flax examples do). :func:`validate` refuses an unknown field or a value
+out of range with a message that names the field and what it allows; each method's encoding
+(:mod:`kx.evolve.encoding`) validates its own section.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib.util
+import json
 import pathlib
 from typing import Any
 
 import ml_collections
 
-from kx.neat import presets
-from kx.neat.activations import ACTIVATIONS
-from kx.neat.types import NEATConfig, NEATError, NEATParams
-from kx.sim import env, observe
+from kx.evolve import encoding as encodings
+from kx.evolve.objective import OBJECTIVES
+from kx.sim import env
 from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
 
 CONFIG_DIR = pathlib.Path(__file__).resolve().parents[2] / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "neat_3v2.py"
-METHODS = ("neat",)  # HyperNEAT and the novelty hybrid join with their own issues
 LAYOUTS = ("fixed", "full")
 PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
@@ -37,26 +39,27 @@ class ConfigError(ValueError):
     """A config field that does not exist or holds a value out of range."""
 
 
-def neat_params_fields(params: NEATParams) -> dict:
-    """A :class:`NEATParams` as ``neat.*`` config values (plain Python numbers)."""
-    return {f.name: getattr(params, f.name) for f in dataclasses.fields(NEATParams)}
-
-
-def base_config(reading: str = "sharpneat") -> ml_collections.ConfigDict:
-    """The paper's source task with NEAT (Table 2 in ``reading`` "sharpneat", the default, or
-    "literal"; see :mod:`kx.neat.presets`), every field a user may set."""
-    ncfg, nparams = {"sharpneat": presets.keepaway_sharpneat, "literal": presets.keepaway_literal}[reading]()
+def base_config(method: str = "neat", **section_options) -> ml_collections.ConfigDict:
+    """The run loop's fields at their defaults and the config section of ``method``'s encoding
+    (``section_options`` go to its ``default_config``, e.g. ``base_config("neat", reading="literal")``
+    for Table 2 read literally; see :mod:`kx.neat.presets`)."""
+    if method in ("sharpneat", "literal"):  # base_config("literal"): the NEAT reading, as before
+        method, section_options = "neat", {"reading": method, **section_options}
+    if method not in encodings.names():
+        raise ConfigError(f"method: allowed one of {encodings.names()}, got {method!r}")
+    cls = encodings.get(method)
     sim_cfg, sim_params = KeepAwayConfig(), KeepAwayParams()
     c = ml_collections.ConfigDict()
     c.task = "3v2"  # "<keepers>v<takers>": the paper's 3v2, 4v3, 5v3, 6v4 or any other in range
-    c.method = "neat"
+    c.method = method  # the encoding: one of kx.evolve.encoding.names()
+    c.objective = "fitness"  # what the learner selects on (kx.evolve.objective); reports are always fitness
     c.layout = "fixed"  # "fixed": 13 inputs, 3 outputs (the paper's NEAT); "full": 4K+2T-3 inputs, K outputs
-    c.population_size = ncfg.population_size
-    c.trials = 30  # start states per generation, shared by every genome
+    c.population_size = 150
+    c.trials = 30  # start states per generation, shared by every individual
     c.generations = 20
     c.seed = 0
     c.checkpoint_every = 5  # generations between checkpoints (and one at the end)
-    c.keep_checkpoints = 3  # the last few are kept, and the best (by best fitness) too
+    c.keep_checkpoints = 3  # the last few are kept, and the one whose champion validated best too
     # each generation's champion (by training fitness) replays on this many validation start states; the
     # run's champion is the one that validates best
     c.validation_trials = 100
@@ -68,12 +71,62 @@ def base_config(reading: str = "sharpneat") -> ml_collections.ConfigDict:
         **{f: getattr(sim_params, f) for f in ("max_iterations", "start_clearance", "kick_noise_deg",
                                                "taker_reaction_delay", "tackle_iterations")}})
     c.sim.kick_noise_deg = float(c.sim.kick_noise_deg)
-    neat = neat_params_fields(nparams)
-    neat.update(output_activation=ncfg.output_activation, hidden_activation=ncfg.hidden_activation,
-                max_hidden=ncfg.max_nodes - ncfg.n_fixed, species_capacity=ncfg.species_capacity,
-                extra_conns=ncfg.max_conns - ncfg.n_initial_conns, extra_genes=ncfg.genes - ncfg.n_initial_conns)
-    c.neat = ml_collections.ConfigDict(neat)
+    for k, v in cls.defaults().items():
+        c[k] = v
+    c[cls.section] = cls.default_config(**section_options)
     return c
+
+
+def _fields(cfg: ml_collections.ConfigDict, prefix: str = "") -> list[str]:
+    out = []
+    for k, v in cfg.items():
+        out += _fields(v, f"{prefix}{k}.") if isinstance(v, ml_collections.ConfigDict) else [prefix + k]
+    return out
+
+
+def _field(cfg, name: str):
+    node = cfg
+    for part in name.split("."):
+        if not isinstance(node, ml_collections.ConfigDict) or part not in node:
+            return None, False
+        node = node[part]
+    return node, True
+
+
+_KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a string", tuple: "a tuple"}
+
+
+def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections.ConfigDict:
+    """``cfg`` with ``field=value`` overrides applied by ml_collections' ``config_flags`` (values parsed
+    by the type of the field they replace: ``seed=3``, ``gif=false``, ``neat.add_node_prob=0.05``)."""
+    from absl import flags
+    from ml_collections import config_flags
+
+    argv = ["kx"]
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"--config.{item}: expected --config.<field>=<value>")
+        field, text = item.split("=", 1)
+        value, ok = _field(cfg, field)
+        if not ok or isinstance(value, ml_collections.ConfigDict):
+            raise ConfigError(f"{field}: no such config field; the fields are: {', '.join(_fields(cfg))}")
+        argv.append(f"--config.{field}={text}")
+    if len(argv) == 1:
+        return cfg
+    fv = flags.FlagValues()
+    config_flags.DEFINE_config_dict("config", cfg, flag_values=fv, lock_config=False, sys_argv=argv)
+    try:
+        fv(argv)
+    except flags.Error as e:
+        msg = str(e)
+        for item in overrides:
+            field, text = item.split("=", 1)
+            if f"--config.{field}=" in msg:
+                value, _ = _field(cfg, field)
+                what = _KIND.get(type(value), type(value).__name__)
+                raise ConfigError(f"{field}: allowed {what}, got {text!r}") from None
+        raise ConfigError(f"--config: {msg}") from None
+    return fv.config
 
 
 def load(path: str | pathlib.Path | None = None, overrides=()) -> ml_collections.ConfigDict:
@@ -88,53 +141,9 @@ def load(path: str | pathlib.Path | None = None, overrides=()) -> ml_collections
     spec.loader.exec_module(module)
     if not hasattr(module, "get_config"):
         raise ConfigError(f"--config: {path} defines no get_config()")
-    cfg = module.get_config()
-    apply_overrides(cfg, overrides)
+    cfg = apply_overrides(module.get_config(), overrides)
     cfg.lock()
     return cfg
-
-
-def _fields(cfg: ml_collections.ConfigDict, prefix: str = "") -> list[str]:
-    out = []
-    for k, v in cfg.items():
-        out += _fields(v, f"{prefix}{k}.") if isinstance(v, ml_collections.ConfigDict) else [prefix + k]
-    return out
-
-
-def _parse(field: str, text: str, current: Any) -> Any:
-    kind = type(current)
-    try:
-        if kind is bool:
-            if text.lower() in ("1", "true", "yes"):
-                return True
-            if text.lower() in ("0", "false", "no"):
-                return False
-            raise ValueError(text)
-        if kind is int:
-            return int(text)
-        if kind is float:
-            return float(text)
-        return text
-    except ValueError:
-        what = {bool: "true or false", int: "an integer", float: "a number"}.get(kind, kind.__name__)
-        raise ConfigError(f"{field}: allowed {what}, got {text!r}") from None
-
-
-def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> None:
-    """Set ``a.b=value`` fields in place, parsed by the type of the value they replace."""
-    for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"--config.{item}: expected --config.<field>=<value>")
-        field, text = item.split("=", 1)
-        *parents, leaf = field.split(".")
-        node = cfg
-        for p in parents:
-            node = node.get(p) if isinstance(node, ml_collections.ConfigDict) else None
-        if not isinstance(node, ml_collections.ConfigDict) or leaf not in node or isinstance(
-                node[leaf], ml_collections.ConfigDict):
-            raise ConfigError(f"{field}: no such config field; the fields are: {', '.join(_fields(cfg))}")
-        with node.unlocked():
-            node[leaf] = _parse(field, text, node[leaf])
 
 
 def _need(ok: bool, field: str, allowed: str, value: Any) -> None:
@@ -152,24 +161,36 @@ class Experiment:
 
     sim: KeepAwayConfig
     sim_params: KeepAwayParams
-    neat: NEATConfig
-    neat_params: NEATParams
+    encoding: encodings.Encoding
     layout: str
+
+    @property
+    def neat(self):
+        """The NEAT encoding's :class:`~kx.neat.types.NEATConfig` (NEAT runs only)."""
+        return self.encoding.neat_config
 
 
 def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     """Check every field (raising :class:`ConfigError` that names the first bad one) and build the
-    experiment's objects."""
-    expected = _fields(base_config())
+    experiment's objects, its encoding included."""
+    if not isinstance(cfg, ml_collections.ConfigDict):
+        raise ConfigError(f"config: expected an ml_collections.ConfigDict, got {type(cfg).__name__}")
+    method = cfg.get("method")
+    _need(isinstance(method, str) and method in encodings.names(), "method", f"one of {encodings.names()}", method)
+    expected = _fields(base_config(method))
     unknown = sorted(set(_fields(cfg)) - set(expected))
     missing = sorted(set(expected) - set(_fields(cfg)))
     if unknown:
-        raise ConfigError(f"{unknown[0]}: no such config field; the fields are: {', '.join(expected)}")
+        raise ConfigError(f"{unknown[0]}: no such config field of method {method!r}; the fields are: "
+                          f"{', '.join(expected)}")
     if missing:
         raise ConfigError(f"{missing[0]}: missing from the config (start config files from "
-                          f"kx.evolve.config.base_config())")
-    _need(isinstance(cfg.method, str) and cfg.method in METHODS, "method", f"one of {METHODS}", cfg.method)
-    _need(isinstance(cfg.layout, str) and cfg.layout in LAYOUTS, "layout", f"one of {LAYOUTS}", cfg.layout)
+                          f"kx.evolve.config.base_config({method!r}))")
+    cls = encodings.get(method)
+    _need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
+          cfg.objective)
+    _need(isinstance(cfg.layout, str) and cfg.layout in cls.layouts, "layout",
+          f"one of {cls.layouts} for method {method!r}", cfg.layout)
     _need(_int(cfg.population_size) and 2 <= cfg.population_size <= 100_000, "population_size",
           "an integer in [2, 100000]", cfg.population_size)
     _need(_int(cfg.trials) and 1 <= cfg.trials <= 100_000, "trials", "an integer in [1, 100000]", cfg.trials)
@@ -203,32 +224,7 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
         env.check(sim, sim_params)
     except KeepAwayError as e:
         raise ConfigError(f"sim.{e}") from None
-    n = dict(cfg.neat)
-    for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes"):
-        _need(_int(n[f]) and n[f] >= (1 if f == "species_capacity" else 0), f"neat.{f}", "an integer >= "
-              + ("1" if f == "species_capacity" else "0"), n[f])
-    _need(n["species_capacity"] <= cfg.population_size, "neat.species_capacity",
-          f"at most population_size ({cfg.population_size})", n["species_capacity"])
-    _need(n["extra_genes"] <= n["extra_conns"], "neat.extra_genes", f"at most neat.extra_conns ({n['extra_conns']})",
-          n["extra_genes"])
-    for f in ("output_activation", "hidden_activation"):
-        _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"neat.{f}", f"one of {sorted(ACTIVATIONS)}", n[f])
-    n_in, n_out = observe.n_inputs(cfg.layout, sim), observe.n_outputs(cfg.layout, sim)
-    try:
-        neat_cfg, _ = presets.keepaway(
-            n_inputs=n_in, n_outputs=n_out, population_size=cfg.population_size,
-            max_nodes=n_in + 1 + n_out + n["max_hidden"], max_conns=(n_in + 1) * n_out + n["extra_conns"],
-            max_genes=(n_in + 1) * n_out + n["extra_genes"], species_capacity=n["species_capacity"],
-            output_activation=n["output_activation"], hidden_activation=n["hidden_activation"],
-            activation_options=tuple(dict.fromkeys((n["hidden_activation"], n["output_activation"]))))
-        neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
-        neat_params.validate()
-        if neat_params.target_species > neat_cfg.species_capacity:
-            raise NEATError(f"NEATParams.target_species = {neat_params.target_species}: allowed at most "
-                            f"neat.species_capacity = {neat_cfg.species_capacity}")
-    except NEATError as e:
-        raise ConfigError(str(e).replace("NEATParams.", "neat.").replace("NEATConfig.", "neat.")) from None
-    return Experiment(sim=sim, sim_params=sim_params, neat=neat_cfg, neat_params=neat_params, layout=cfg.layout)
+    return Experiment(sim=sim, sim_params=sim_params, encoding=cls(cfg, sim, sim_params), layout=cfg.layout)
 
 
 def flatten(d: dict, prefix: str = "") -> dict:
@@ -241,10 +237,49 @@ def flatten(d: dict, prefix: str = "") -> dict:
 
 def from_dict(d: dict) -> ml_collections.ConfigDict:
     """A config from its ``to_dict()`` form (e.g. a run's ``config.json``), on top of
-    :func:`base_config`; unlocked."""
-    cfg = base_config()
-    cfg.update_from_flattened_dict(flatten(d))
+    :func:`base_config` of its method; unlocked. A field that this kx's configs do not have, or a
+    section in the place of a value, is refused with :class:`ConfigError`."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"config: expected a JSON object of config fields, got {type(d).__name__}")
+    method = d.get("method", "neat")
+    if method not in encodings.names():
+        raise ConfigError(f"method: allowed one of {encodings.names()}, got {method!r}")
+    cfg = base_config(method)
+    known = set(_fields(cfg))
+    for field, value in flatten(d).items():
+        if field not in known:
+            section = any(f.startswith(field + ".") for f in known)
+            raise ConfigError(f"{field}: {'a section, not a value' if section else 'not a field of this kx configs'}"
+                              f" (the fields are: {', '.join(sorted(known))})")
+        parent, _, leaf = field.rpartition(".")
+        node = _field(cfg, parent)[0] if parent else cfg
+        try:
+            node[leaf] = value
+        except TypeError as e:
+            raise ConfigError(f"{field}: {value!r} does not fit the field ({e})") from None
     return cfg
+
+
+def read_run_config(path: str | pathlib.Path) -> ml_collections.ConfigDict:
+    """A run directory's ``config.json`` as a config (unlocked), or :class:`ConfigError` saying why not:
+    missing, not JSON, not an object of config fields, or written by a kx with other fields."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: no such file (not a kx run directory?)")
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
+    try:
+        cfg = from_dict(d)
+        missing = sorted(set(_fields(cfg)) - set(flatten(d)))
+        if missing:
+            raise ConfigError(f"{missing[0]}: missing ({len(missing)} fields this kx's configs have are missing)")
+        return cfg
+    except ConfigError as e:
+        raise ConfigError(f"{path}: {e}; written by another kx version, or edited by hand") from None
+    except (TypeError, ValueError, AttributeError) as e:
+        raise ConfigError(f"{path}: its fields do not fit this kx's configs ({e})") from None
 
 
 def identity_mismatch(saved: dict, cfg: ml_collections.ConfigDict) -> str | None:

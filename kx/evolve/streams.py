@@ -7,16 +7,22 @@ A run with seed ``s`` derives everything from ``root = jax.random.key(s)``::
     VALIDATION:  k = fold_in(stream, 0)               the same validation states every generation
     TEST:        k = fold_in(stream, 0)               final reports only (kx.evaluate, kx.bench learning)
                  then starts = fold_in(k, 0) (start states: env.reset_batch splits it per trial)
-                      eval   = fold_in(k, 1) (the evaluator: kick noise and policy noise, which
-                                              kx.sim.evaluate splits from it)
-    LEARNER:     init = fold_in(stream, 0), generation g's learner step = fold_in(fold_in(stream, 1), g)
+                      eval   = fold_in(k, 1) (the evaluator's key, from which kx.sim.evaluate derives)
+                           evaluator noise = fold_in(eval, 0): trial i's kick-noise word is
+                                             bits(fold_in(evaluator noise, i)), hashed with the iteration
+                           policy noise    = fold_in(eval, 1): lane l's key at iteration t is
+                                             fold_in(fold_in(policy noise, l), t) (stochastic policies only)
+    LEARNER:     init = fold_in(stream, 0)
+                 generation g's tell = fold_in(fold_in(stream, 1), g), its ask = fold_in(fold_in(stream, 2), g)
 
 Why ``fold_in`` and distinct indices everywhere: under JAX's default RNG ``split(k, n)[i]`` equals
 ``fold_in(k, i)``, so a key that is split for one use and folded for another hands the same key to
 both (the first kx runs gave the evaluator ``fold_in(k, 1)`` of the key whose ``split`` made the start
 states: trial 1's reset key). Here every key has one derivation path, and the start states of the
 three sets of trials come from three different streams, so training, validation and test states are
-disjoint draws (the tests check that no validation or test state equals a training state).
+disjoint draws (the tests check that no validation or test state equals a training state). Below a
+key handed to its user (a learner's ``tell``, ``env.reset_batch``), that user may split it as it likes:
+its keys stay in its own subtree. The same table, with the users of each key, is in docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -67,3 +73,8 @@ def learner_init(seed: int) -> jax.Array:
 
 def learner_step(seed: int, generation: int) -> jax.Array:
     return jax.random.fold_in(jax.random.fold_in(_stream(seed, LEARNER), 1), generation)
+
+
+def learner_ask(seed: int, generation: int) -> jax.Array:
+    """The key of generation ``generation``'s ``ask`` (CMA-ES samples its population with it)."""
+    return jax.random.fold_in(jax.random.fold_in(_stream(seed, LEARNER), 2), generation)

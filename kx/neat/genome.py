@@ -487,10 +487,3 @@ def apply_structure(key: jax.Array, g: Genome, kind, key1, key2, node_id, innov_
     return g.replace(conn_src=jnp.where(gone, -1, src).astype(I32), conn_dst=jnp.where(gone, -1, dst).astype(I32),
                      conn_weight=jnp.where(gone, 0.0, w), conn_innov=jnp.where(gone, -1, innov).astype(I32),
                      conn_enabled=enabled & ~gone, conn_valid=(g.conn_valid | put_a | put_b) & ~gone)
-
-
-# --------------------------------------------------------------------------------------------------
-# Moved to kx.neat.checks; re-exported for a caller outside kx.neat that still imports them from
-# here (kx.evolve.run). The checks import nothing of this module, so there is no import cycle.
-
-from kx.neat.checks import check_genome, check_population  # noqa: E402, F401

@@ -1,0 +1,174 @@
+"""Run checkpoints: the whole run state as one orbax checkpoint, with a format version, refused with a reason.
+
+A checkpoint ``checkpoints/<n>/`` holds, after ``n`` generations:
+
+* ``state``: the :class:`RunState` pytree (the learner's state, the objective's state, the validated
+  champion and the run's counters), written by orbax's ``StandardSave``;
+* ``meta``: JSON with the checkpoint format (:data:`FORMAT`), the method (the encoding's name), the
+  resolved config, the generation and the figures the preservation policy reads.
+
+orbax writes each checkpoint to a temporary directory and renames it when complete, so a kill leaves
+the whole checkpoint or none. The last ``keep_checkpoints`` are kept, and the one of the generation
+whose champion validated best. :func:`restore` refuses, with the reason, a checkpoint that is missing,
+unreadable, of another format, of another method, of other shapes, or whose genotypes break the
+encoding's invariants.
+"""
+
+from __future__ import annotations
+
+import pathlib
+import shutil
+import time
+from typing import Any, Callable
+
+import jax
+import numpy as np
+from flax import struct
+
+#: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta)
+FORMAT = 2
+
+
+class RunError(RuntimeError):
+    """A run directory or checkpoint that cannot be used, with the reason."""
+
+
+@struct.dataclass
+class RunState:
+    """What a run carries from one generation to the next, checkpointed whole."""
+
+    learner: Any  # the encoding's learner state (NEAT's species and population, CMA-ES's distribution)
+    objective: Any  # the objective's state (empty for fitness; the novelty archive later)
+    champion: Any  # the validated champion's genotype: the generation champion that validated best
+    champion_validation: jax.Array  # float32 its mean fitness on the validation states (-inf before any)
+    champion_generation: jax.Array  # int32 the generation it was evaluated in (-1 before any)
+    generation: jax.Array  # int32 generations done
+    best_so_far: jax.Array  # float32 best training fitness so far (-inf before any)
+
+
+def manager(ckpt_dir: pathlib.Path, keep: int, create: bool = True):
+    import orbax.checkpoint as ocp
+    from orbax.checkpoint import checkpoint_managers as cm
+
+    policy = cm.AnyPreservationPolicy([
+        cm.LatestN(n=keep),
+        cm.BestN(get_metric_fn=lambda m: m["champion_validation"], reverse=False, n=1),
+    ])
+    options = ocp.CheckpointManagerOptions(preservation_policy=policy, create=create,
+                                           enable_async_checkpointing=False)
+    return ocp.CheckpointManager(pathlib.Path(ckpt_dir).absolute(), options=options, item_names=("state", "meta"))
+
+
+def steps(run_dir: pathlib.Path) -> list[int]:
+    """The complete checkpoints of a run directory, ascending (none: ``[]``)."""
+    ckpt_dir = pathlib.Path(run_dir).absolute() / "checkpoints"
+    if not ckpt_dir.is_dir():
+        return []
+    return sorted(manager(ckpt_dir, keep=1_000_000, create=False).all_steps())
+
+
+def save(mgr, step: int, state: RunState, meta: dict) -> None:
+    """Writes checkpoint ``step`` (``meta`` gains the format version) and waits until it is complete."""
+    import orbax.checkpoint as ocp
+
+    meta = {"format": FORMAT, **meta}
+    mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)),
+             metrics={"champion_validation": float(meta["champion_validation"])})
+    mgr.wait_until_finished()
+
+
+def _damaged(step: int, ckpt_dir: pathlib.Path, what: str, err: Exception, all_steps: list[int]) -> RunError:
+    earlier = [s for s in all_steps if s < step]
+    hint = (f"; earlier checkpoints: {earlier} (continue from one with --resume --step {earlier[-1]})" if earlier
+            else "; there is no earlier checkpoint")
+    return RunError(f"checkpoint {step} in {ckpt_dir} is damaged or unreadable ({what}: {type(err).__name__}: "
+                    f"{str(err)[:300]}){hint}")
+
+
+def restore(run_dir: pathlib.Path, template: RunState, method: str, step: int | None = None,
+            check: Callable[[RunState], list[str]] | None = None) -> tuple[int, RunState, dict]:
+    """``(step, state, meta)`` of checkpoint ``step`` (default: the latest) of a run directory.
+
+    ``template`` is the run state's shape (``jax.eval_shape`` of the trainer's ``init``); ``method``
+    the encoding the caller expects; ``check`` the encoding's invariants of a restored state. Raises
+    :class:`RunError` with the reason for anything that cannot be used.
+    """
+    import orbax.checkpoint as ocp
+
+    ckpt_dir = pathlib.Path(run_dir).absolute() / "checkpoints"
+    if not ckpt_dir.is_dir():
+        raise RunError(f"{run_dir}: no checkpoints/ directory (not a kx run directory?)")
+    mgr = manager(ckpt_dir, keep=1_000_000, create=False)
+    all_steps = sorted(mgr.all_steps())
+    if not all_steps:
+        raise RunError(f"{ckpt_dir}: holds no complete checkpoint")
+    step = all_steps[-1] if step is None else step
+    if step not in all_steps:
+        raise RunError(f"--step {step}: {ckpt_dir} has no checkpoint {step} (there are {all_steps})")
+    try:
+        meta = mgr.restore(step, args=ocp.args.Composite(meta=ocp.args.JsonRestore()))["meta"]
+    except Exception as e:  # noqa: BLE001 - orbax raises many kinds; all mean the same to the user
+        raise _damaged(step, ckpt_dir, "its metadata", e, all_steps) from None
+    if not isinstance(meta, dict) or "config" not in meta or "generation" not in meta:
+        raise RunError(f"checkpoint {step} in {ckpt_dir} is not a kx checkpoint (its metadata has no config)")
+    fmt = meta.get("format", 1)
+    if fmt != FORMAT:
+        raise RunError(f"checkpoint {step} in {ckpt_dir} has checkpoint format {fmt}; this kx reads format "
+                       f"{FORMAT} ({'written by an older kx' if fmt < FORMAT else 'written by a newer kx'}); "
+                       "start a new run, or use the kx that wrote it")
+    saved_method = meta["config"].get("method") if isinstance(meta["config"], dict) else None
+    if saved_method != method:
+        raise RunError(f"checkpoint {step} in {ckpt_dir} holds a {saved_method!r} run state; this config's "
+                       f"method is {method!r}")
+    abstract = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), template)
+    try:
+        state = mgr.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(abstract)))["state"]
+    except Exception as e:  # noqa: BLE001
+        if "shape" in str(e).lower() or "structure" in str(e).lower():
+            raise RunError(f"checkpoint {step} in {ckpt_dir} does not match this config's shapes: "
+                           f"{type(e).__name__}: {str(e)[:500]}") from None
+        raise _damaged(step, ckpt_dir, "its run state", e, all_steps) from None
+    for path, a, b in zip(jax.tree_util.tree_flatten_with_path(abstract)[0], jax.tree.leaves(abstract),
+                          jax.tree.leaves(state)):
+        if a.shape != b.shape or a.dtype != b.dtype:
+            raise RunError(f"checkpoint {step} in {ckpt_dir}: {jax.tree_util.keystr(path[0])} is "
+                           f"{b.dtype}{list(b.shape)}, this config needs {a.dtype}{list(a.shape)}")
+    if int(state.generation) != int(meta["generation"]):
+        raise RunError(f"checkpoint {step} in {ckpt_dir} is damaged: its state is after generation "
+                       f"{int(state.generation)}, its metadata says {meta['generation']}")
+    if check is not None:
+        errs = check(state)
+        if errs:
+            raise RunError(f"checkpoint {step} in {ckpt_dir} holds invalid genotypes ({len(errs)} problems; the "
+                           f"first: {errs[0]}): damaged, or written by a kx with another genome layout")
+    return step, state, meta
+
+
+def set_aside_after(run_dir: pathlib.Path, step: int) -> pathlib.Path | None:
+    """Moves the checkpoints after ``step`` (and the metrics file) to ``abandoned/<time>/`` so that a
+    run continued from checkpoint ``step`` can write its own; nothing is deleted. Returns the folder."""
+    run_dir = pathlib.Path(run_dir)
+    ckpt_dir = run_dir / "checkpoints"
+    later = [p for p in ckpt_dir.iterdir() if p.name.isdigit() and int(p.name) > step] if ckpt_dir.is_dir() else []
+    if not later:
+        return None
+    dest = run_dir / "abandoned" / time.strftime("%Y%m%d-%H%M%S")
+    (dest / "checkpoints").mkdir(parents=True, exist_ok=True)
+    for p in sorted(later):
+        shutil.move(str(p), str(dest / "checkpoints" / p.name))
+    if (run_dir / "metrics.csv").is_file():
+        shutil.copy2(run_dir / "metrics.csv", dest / "metrics.csv")
+    return dest
+
+
+def digest(state: Any) -> str:
+    """A SHA-256 of a pytree's leaves (their bytes, shapes and dtypes), to trace a state to its source."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for leaf in jax.tree.leaves(state):
+        a = np.asarray(jax.random.key_data(leaf) if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
+                       else leaf)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()

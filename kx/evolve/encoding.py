@@ -1,0 +1,159 @@
+"""The interface between the run loop and a method: an *encoding* turns a population into keep-away policies.
+
+The run loop (:mod:`kx.evolve.run`), ``kx.evaluate`` and the benchmarks know only this interface; each
+method is one class that implements it and registers itself under the config's ``method`` name::
+
+    class MyEncoding(Encoding):
+        name = "mine"                      # cfg.method
+        section = "mine"                   # the config section it owns: cfg.mine.*
+        layouts = ("fixed", "full")        # the observation layouts it can play
+
+        @classmethod
+        def default_config(cls): ...       # its section's fields and defaults (a ConfigDict)
+        def __init__(self, cfg, sim, sim_params): ...   # validate the section (ConfigError naming the field)
+        def init(self, key): ...           # the learner's first state (a pytree)
+        def ask(self, key, state): ...     # the population to evaluate (a pytree, leading axis P)
+        def tell(self, key, population, score, fitness, state): ...   # -> (state, {field: scalar})
+        def policy_for(self, sim): ...     # the kx.sim Policy its genotypes play in task ``sim``
+        def policy_params(self, population): ...   # the evaluator's params for that policy
+
+    register(MyEncoding)
+
+``tell`` receives two arrays ``[P]``: ``score``, what the learner selects on (the objective's
+selection score, :mod:`kx.evolve.objective`), and ``fitness``, the raw task fitness. Everything the
+run reports comes from ``fitness`` (the champion, the best checkpoint, metrics.csv, the progress line
+and the plots); the learner may use ``fitness`` only for its own bookkeeping of the best genome.
+
+A *genotype* is one individual of a population (``individual(population, i)``, by default the ``i``-th
+slice of every leaf); the run's validated champion is a genotype, checkpointed in the run state, and
+``policy_params(stack([genotype]))`` plays it. A policy whose ``shared`` flag is set gets the
+population's parameters as one table that every episode lane shares (each lane carries its index only;
+:mod:`kx.sim.evaluate`), so that large per-genome parameters are never copied per lane and new values
+each generation never recompile the evaluator.
+"""
+
+from __future__ import annotations
+
+import abc
+import pathlib
+from typing import Any, ClassVar
+
+import jax
+import ml_collections
+
+from kx.sim.policies import Policy
+from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+ENCODINGS: dict[str, type["Encoding"]] = {}
+
+
+def register(cls: type["Encoding"]) -> type["Encoding"]:
+    """Make ``cls`` available as ``method = cls.name`` in configs (usable as a class decorator)."""
+    if not (isinstance(cls.name, str) and cls.name.isidentifier()):
+        raise ValueError(f"Encoding.name: allowed a Python identifier, got {cls.name!r}")
+    ENCODINGS[cls.name] = cls
+    return cls
+
+
+def get(name: str) -> type["Encoding"]:
+    """The registered encoding class of ``method = name`` (KeyError if none)."""
+    _load_builtin()
+    return ENCODINGS[name]
+
+
+BUILTIN = ("neat", "cma_es")
+
+
+def names() -> tuple[str, ...]:
+    """The registered methods: the built-in ones first, then any others in registration order."""
+    _load_builtin()
+    return tuple(n for n in BUILTIN if n in ENCODINGS) + tuple(n for n in ENCODINGS if n not in BUILTIN)
+
+
+def _load_builtin() -> None:
+    # the built-in encodings register themselves on import
+    from kx.evolve import cma_es, neat_encoding  # noqa: F401
+
+
+def stack(genotypes: list) -> Any:
+    """A population of the given genotypes (a leading axis on every leaf)."""
+    return jax.tree.map(lambda *a: jax.numpy.stack(a), *genotypes)
+
+
+class Encoding(abc.ABC):
+    """One method's population and policies (see the module docstring)."""
+
+    name: ClassVar[str]
+    section: ClassVar[str]
+    layouts: ClassVar[tuple[str, ...]] = ("fixed", "full")
+    #: metrics.csv columns the encoding adds (keys of ``tell``'s metrics), after the run loop's own
+    metric_fields: ClassVar[tuple[str, ...]] = ()
+    #: the metric drawn in progress.png's lower panel (None: no panel)
+    plot_field: ClassVar[str | None] = None
+
+    def __init__(self, cfg: ml_collections.ConfigDict, sim: KeepAwayConfig, sim_params: KeepAwayParams):
+        self.cfg, self.sim, self.sim_params = cfg, sim, sim_params
+        self.layout = cfg.layout
+        self.population_size = cfg.population_size
+
+    @classmethod
+    @abc.abstractmethod
+    def default_config(cls) -> ml_collections.ConfigDict:
+        """The fields of the encoding's config section, at their defaults."""
+
+    @classmethod
+    def defaults(cls) -> dict:
+        """Run-loop fields this method sets by default (e.g. ``{"population_size": 50}``)."""
+        return {}
+
+    @abc.abstractmethod
+    def init(self, key: jax.Array) -> Any:
+        """The learner's first state (a pytree of arrays, checkpointed whole)."""
+
+    @abc.abstractmethod
+    def ask(self, key: jax.Array, state: Any) -> Any:
+        """The population to evaluate: a pytree whose leaves have a leading axis ``population_size``."""
+
+    @abc.abstractmethod
+    def tell(self, key: jax.Array, population: Any, score: jax.Array, fitness: jax.Array,
+             state: Any) -> tuple[Any, dict]:
+        """Breed from ``population`` selected by ``score [P]``; returns the next state and metrics (at
+        least the keys of :attr:`metric_fields`, host-convertible scalars)."""
+
+    @abc.abstractmethod
+    def policy_for(self, sim: KeepAwayConfig) -> Policy:
+        """The policy this encoding's genotypes play in task ``sim`` (raise ``ConfigError`` when they
+        cannot: e.g. a full-layout network has as many inputs as its own task needs)."""
+
+    @abc.abstractmethod
+    def policy_params(self, population: Any) -> Any:
+        """The evaluator's parameters of ``population``'s policies (leading axis P; a shared table when
+        the policy is ``shared``)."""
+
+    @property
+    def policy(self) -> Policy:
+        """The policy of the encoding's own task."""
+        if not hasattr(self, "_policy"):
+            self._policy = self.policy_for(self.sim)
+        return self._policy
+
+    def individual(self, population: Any, i) -> Any:
+        """Genotype ``i`` of ``population``."""
+        return jax.tree.map(lambda a: a[i], population)
+
+    def check(self, state: Any, champion: Any | None) -> list[str]:
+        """Problems of a restored learner state and champion (a damaged checkpoint, or one written by a
+        kx whose layout differed); empty when sound."""
+        return []
+
+    def describe(self) -> str:
+        """One line for the run's log: the method and the shape of its policies."""
+        return self.name
+
+    def progress(self, metrics: dict) -> str:
+        """The encoding's part of the progress line."""
+        return ""
+
+    def draw(self, genotype: Any, path: pathlib.Path) -> pathlib.Path | None:
+        """A picture of one genotype (the run's champion) as a PNG; ``None`` if the encoding has none."""
+        return None

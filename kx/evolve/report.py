@@ -1,0 +1,119 @@
+"""What a run writes for its user: metrics.csv rows, the progress line, progress.png and atomic JSON files.
+
+Every file is written atomically (a temporary file renamed into place) or appended one fsynced row at
+a time, so a kill leaves the old file or the new one. The columns of metrics.csv are the run loop's
+(:data:`LOOP_FIELDS`, the same for every method) followed by the encoding's ``metric_fields``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import pathlib
+
+LOOP_FIELDS = (
+    "generation", "best_fitness", "mean_fitness", "median_fitness", "best_so_far", "best_score", "mean_score",
+    "mean_passes", "mean_dispersion", "mean_ball_centre", "champion_passes", "champion_validation",
+    "best_validation", "best_validation_generation", "live_fraction", "live_steps", "eval_seconds",
+    "evolve_seconds", "validation_seconds", "generation_seconds")
+TIMING_FIELDS = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
+
+
+def csv_fields(encoding) -> tuple[str, ...]:
+    return LOOP_FIELDS + tuple(f for f in encoding.metric_fields if f not in LOOP_FIELDS)
+
+
+def write_json(path: pathlib.Path, obj) -> None:
+    """Atomically: a kill leaves the old file or the new one, never half of one."""
+    path = pathlib.Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
+    os.replace(tmp, path)
+
+
+def read_rows(path: pathlib.Path, below: int) -> list[dict]:
+    """The rows of generations before ``below`` (as strings, the way csv reads them)."""
+    if not path.is_file():
+        return []
+    with path.open() as f:
+        return [r for r in csv.DictReader(f) if int(r["generation"]) < below]
+
+
+def write_rows(path: pathlib.Path, rows: list[dict], fields) -> None:
+    tmp = path.with_suffix(".csv.tmp")
+    with tmp.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+    os.replace(tmp, path)
+
+
+def append_row(path: pathlib.Path, row: dict, fields) -> None:
+    with path.open("a", newline="") as f:
+        csv.DictWriter(f, fieldnames=fields).writerow(row)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+def _fmt_seconds(s: float) -> str:
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+
+
+def progress_line(row: dict, total: int, eta: float | None, encoding=None) -> str:
+    """Generation, best / mean / median training fitness, the validated champion, the encoding's own
+    figures (species for NEAT, step size for CMA-ES), the live share of lane-steps and the time."""
+    eta_text = "" if eta is None else f"  ETA {_fmt_seconds(eta)}"
+    own = encoding.progress(row) if encoding is not None else ""
+    return (f"gen {int(row['generation']) + 1:3d}/{total}  best {float(row['best_fitness']):.4f}"
+            f"  mean {float(row['mean_fitness']):.4f}  median {float(row['median_fitness']):.4f}"
+            f"  validation {float(row['champion_validation']):.4f} (best {float(row['best_validation']):.4f}, gen "
+            f"{int(row['best_validation_generation']) + 1}){'  ' + own if own else ''}"
+            f"  live {float(row['live_fraction']):.0%}  {float(row['generation_seconds']):.2f} s/gen (eval "
+            f"{float(row['eval_seconds']):.2f}, evolve {float(row['evolve_seconds']):.3f}){eta_text}")
+
+
+def plot_progress(rows: list[dict], path: pathlib.Path, title: str, baselines: dict | None = None,
+                  lower: str | None = "n_species") -> None:
+    """Best, mean and median training fitness, the best so far, each generation's champion on the
+    validation states and the run's validated champion, the random and heuristic policies on those
+    states, and (below) the encoding's ``lower`` metric (NEAT's species count, CMA-ES's step size)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    g = [int(r["generation"]) + 1 for r in rows]
+    col = lambda k: [float(r[k]) for r in rows]  # noqa: E731
+    if lower is not None:
+        fig, (ax, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    else:
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+    ax.plot(g, col("best_fitness"), label="best (training trials)", color="C0")
+    ax.plot(g, col("best_so_far"), label="best so far (training trials)", color="C0", linestyle="--")
+    ax.plot(g, col("mean_fitness"), label="mean", color="C1")
+    ax.plot(g, col("median_fitness"), label="median", color="C2")
+    ax.plot(g, col("champion_validation"), label="generation champion, validation states", color="C4",
+            marker=".", linestyle=":")
+    ax.plot(g, col("best_validation"), label="validated champion", color="C4", linewidth=2)
+    for i, name in enumerate(("random", "heuristic")):
+        if baselines and name in baselines:
+            ax.axhline(baselines[name], color="0.5", linestyle=(0, (1, 1 + 2 * i)), linewidth=1,
+                       label=f"{name} policy, validation states")
+    ax.set_yscale("log")  # random play holds about 0.003, the heuristic about 0.02, a perfect team 1
+    ax.set_ylabel("fitness (portion of max hold time, log scale)")
+    ax.set_title(title)
+    ax.legend(loc="lower right", fontsize="small")
+    ax.grid(alpha=0.3)
+    if lower is not None:
+        ax2.plot(g, col(lower), color="C3")
+        ax2.set_ylabel(lower.replace("_", " "))
+        ax2.grid(alpha=0.3)
+        ax2.set_xlabel("generation")
+    else:
+        ax.set_xlabel("generation")
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)

@@ -1,0 +1,161 @@
+"""The run loop's public interface: an encoding defined here, outside kx, trains end to end; no method
+recompiles the evaluator or its generation step from one generation to the next."""
+
+import csv
+import json
+import logging
+import re
+
+import jax
+import jax.extend.core.primitives as jax_primitives
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+import pytest
+
+from kx import evaluate as evaluate_cli
+from kx.evolve import checkpoint as ckpt
+from kx.evolve import config as cfg_lib
+from kx.evolve import encoding as encodings
+from kx.evolve import run as run_lib
+from kx.sim import observe, policies
+
+
+class HillClimber(encodings.Encoding):
+    """A (1, P) hill climber on the linear policy: the population is the parent and P - 1 Gaussian
+    perturbations of it; the best by score becomes the parent. Uses only kx's public interfaces."""
+
+    name = "toy_hill_climber"
+    section = "toy"
+    metric_fields = ("step_size", "parent_norm")
+    plot_field = "step_size"
+
+    @classmethod
+    def default_config(cls):
+        return ml_collections.ConfigDict({"step_size": 0.5})
+
+    def __init__(self, cfg, sim, sim_params):
+        super().__init__(cfg, sim, sim_params)
+        if not (isinstance(cfg.toy.step_size, float) and cfg.toy.step_size > 0):
+            raise cfg_lib.ConfigError(f"toy.step_size: allowed a number > 0, got {cfg.toy.step_size!r}")
+        self.dim = observe.n_inputs(self.layout, sim) * 3 + 3
+
+    def init(self, key):
+        return {"parent": jax.random.normal(key, (self.dim,)), "step": jnp.float32(self.cfg.toy.step_size)}
+
+    def ask(self, key, state):
+        noise = jax.random.normal(key, (self.population_size - 1, self.dim)) * state["step"]
+        return jnp.concatenate([state["parent"][None], state["parent"] + noise]), state
+
+    def tell(self, key, population, score, fitness, state):
+        state = {"parent": population[jnp.argmax(score)], "step": state["step"]}
+        return state, {"step_size": state["step"], "parent_norm": jnp.linalg.norm(state["parent"])}
+
+    def policy_for(self, sim):
+        return policies.linear_policy(sim, self.layout)
+
+    def policy_params(self, population):
+        return policies.linear_params(population, self.sim, self.layout)
+
+
+@pytest.fixture(scope="module")
+def toy():
+    encodings.register(HillClimber)
+    yield HillClimber
+    encodings.ENCODINGS.pop(HillClimber.name)
+
+
+def _cfg(**over):
+    cfg = cfg_lib.base_config(HillClimber.name)
+    cfg.update(dict(population_size=6, trials=4, generations=4, checkpoint_every=2, validation_trials=20,
+                    gif_frames=20))
+    cfg.sim.max_iterations = 200
+    cfg.update(over)
+    return cfg
+
+
+def test_an_encoding_defined_outside_kx_trains_end_to_end(toy, tmp_path, capsys):
+    cfg = _cfg()
+    assert "toy.step_size: allowed a number > 0" in str(pytest.raises(
+        cfg_lib.ConfigError, cfg_lib.validate, _cfg(toy=ml_collections.ConfigDict({"step_size": -1.0}))).value)
+    logs = []
+    final = run_lib.train(cfg, tmp_path / "toy", log=logs.append)
+    assert final["generation"] == 3
+    with (tmp_path / "toy" / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r["generation"]) for r in rows] == [0, 1, 2, 3]
+    assert all(float(r["step_size"]) == 0.5 for r in rows)
+    # the hill climber keeps its parent in the population, so its training best never falls below the
+    # parent's; the parent it breeds from is the population's best by score
+    for name in ("config.json", "metrics.csv", "baselines.json", "progress.png", "champion.gif"):
+        assert (tmp_path / "toy" / name).is_file(), name
+    assert ckpt.steps(tmp_path / "toy") == [2, 4]
+    assert any("toy_hill_climber" in line for line in logs) and any(line.startswith("gen   4/4") for line in logs)
+    # resumed from checkpoint 2 it ends bit for bit where the uninterrupted run ended
+    trainer, step, a, _ = run_lib.restore(tmp_path / "toy")
+    assert step == 4
+    run_lib.train(cfg, tmp_path / "toy", resume=True, step=2, log=logs.append)
+    _, _, b, _ = run_lib.restore(tmp_path / "toy")
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # and the same in memory, with no run directory
+    c, _ = run_lib.evolve_in_memory(run_lib.Trainer(cfg))
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(c), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    # kx.evaluate plays its champion in another task: the fixed layout fits every team size
+    assert evaluate_cli.main([str(tmp_path / "toy"), "--task", "4v3", "--trials", "8", "--no-baselines"]) == 0
+    out = json.loads((tmp_path / "toy" / "eval" / "4v3-8-seed0.json").read_text())
+    assert out["method"] == HillClimber.name and 0 < out["champion"]["mean_fitness"] <= 1
+
+
+PRIMITIVES = {p.name for p in vars(jax_primitives).values() if hasattr(p, "bind") and hasattr(p, "name")}
+
+
+class _Compiles(logging.Handler):
+    def __init__(self):
+        super().__init__()
+        self.seen = []
+
+    def emit(self, record):
+        m = re.match(r"Compiling (\S+) with global shapes and types (.*)\. Argument mapping", record.getMessage())
+        # One primitive applied eagerly (jit(slice) of a key array, say) compiles once per static parameter
+        # (its slice bounds), which the log does not show: only programs, which the log describes
+        # fully by their shapes, are tracked. A weak type turned strong is a recompile with the same
+        # shapes: compare without the mark.
+        if m and m.group(1)[4:-1] not in PRIMITIVES:
+            self.seen.append((m.group(1), m.group(2).replace("~", "").replace(", weak_type=True", "")))
+
+
+@pytest.mark.parametrize("method, size", [("neat", 12), ("cma_es", 8), (HillClimber.name, 7)])
+def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, method, size):
+    """After the first generations (which compile every function, and the evaluator's batch widths
+    reached so far), a generation compiles nothing it compiled before: new values of the population,
+    its networks or its shared table reuse the compiled programs. A batch width reached for the first
+    time compiles once (each width is a program of its own)."""
+    cfg = cfg_lib.base_config(method) if method != HillClimber.name else _cfg()
+    cfg.update(dict(population_size=size, trials=4, validation_trials=20, generations=8))
+    cfg.sim.max_iterations = 200
+    trainer = run_lib.Trainer(cfg)
+    handler = _Compiles()
+    logger = logging.getLogger("jax._src.interpreters.pxla")
+    logger.addHandler(handler)
+    old = jax.config.jax_log_compiles
+    jax.config.update("jax_log_compiles", True)
+    try:
+        state = trainer.init()
+        per_generation = []
+        for _ in range(cfg.generations):
+            before = len(handler.seen)
+            state = trainer.step(state).state
+            per_generation.append(handler.seen[before:])
+    finally:
+        jax.config.update("jax_log_compiles", old)
+        logger.removeHandler(handler)
+    assert per_generation[0], "the log of compilations caught nothing: the test would pass vacuously"
+    seen = set()
+    for g, compiles in enumerate(per_generation):
+        for c in compiles:
+            assert c not in seen, f"generation {g} compiled {c[0]} again with the same shapes"
+            seen.add(c)
+    later = [c for compiles in per_generation[2:] for c in compiles]
+    assert all("_advance" in name or "_compact" in name for name, _ in later), later
