@@ -13,7 +13,8 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``generation``: seconds per generation of ``python -m kx.train``'s default config, split into
   evaluation and evolution, with the share of executed simulator steps that were live.
 * ``learning``: the default config's validated champions over 10 seeds on 1000 test states, beside the
-  same budget of CMA-ES (evosax, optional ``bench`` extra) on a linear policy of the same layout.
+  same budget of CMA-ES (evosax, ``configs/cma_es_3v2.py``) on a linear policy of the same layout, through
+  the same run loop.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
