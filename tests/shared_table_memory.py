@@ -43,6 +43,20 @@ def toy_policy(config: KeepAwayConfig) -> Policy:
     return Policy("toy-shared", apply, shared=True)
 
 
+def peak_kib() -> int:
+    """This process's peak resident set size in KiB: ``VmHWM`` of /proc/self/status, the high-water mark
+    of this program's own memory. Not ``ru_maxrss``: Linux carries that over from the process image
+    before ``exec``, so a child of a pytest worker that holds 5 GB would report the worker's 5 GB."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux, may include the parent's
+
+
 def main() -> None:
     if os.environ.get("KX_CACHE_DIR", "off") != "off":  # the test suite's compilation cache
         jax.config.update("jax_compilation_cache_dir", os.environ["KX_CACHE_DIR"])
@@ -54,7 +68,7 @@ def main() -> None:
     c = ev.EvalCounters()
     stats = ev.evaluate(toy_policy(config), table, starts, params, config, key=jax.random.key(2), counters=c)
     assert stats.fitness.shape == (N_POL, N_TRIALS)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss  # KiB on Linux
+    peak = peak_kib()
     print(f"peak_kib {peak} widths {','.join(map(str, c.widths))} mean_fitness {float(stats.fitness.mean()):.4f}")
 
 
