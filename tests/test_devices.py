@@ -78,6 +78,7 @@ def test_two_devices_equal_one(tmp_path):
     _two_device_process(SCRIPT)
 
 
+@pytest.mark.slow  # the default suite checks it through kx.evaluate (2 devices) against the trainer (1) for CMA-ES
 def test_shared_table_on_two_devices_equals_one():
     _two_device_process(SHARED_SCRIPT)
 

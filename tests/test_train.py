@@ -24,6 +24,9 @@ from kx.evolve import report, streams
 from kx.evolve import run as run_lib
 from kx.sim import env
 
+# one worker runs this module, so that each method's trained run directory (a module fixture) is built
+# once rather than once per worker
+pytestmark = pytest.mark.xdist_group("train")
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GENERATIONS = 6
 COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_frames=30",
@@ -191,8 +194,10 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
 
 
 def test_a_relative_workdir_works(capsys, trained, tmp_path, monkeypatch):
-    # orbax needs absolute paths; the run resolves a relative --workdir itself
-    src, _, _ = trained
+    # orbax needs absolute paths; the run resolves a relative --workdir itself (the same code for any method)
+    src, _, method = trained
+    if method != "neat":
+        pytest.skip("the run directory's path is handled before the method matters")
     shutil.copytree(src, tmp_path / "rel")
     monkeypatch.chdir(tmp_path)
     assert train_cli.main(["--workdir", "rel", "--resume", "--config.generations=7", "--config.gif=false"]) == 0
