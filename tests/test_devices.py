@@ -83,6 +83,7 @@ def test_shared_table_on_two_devices_equals_one():
     _two_device_process(SHARED_SCRIPT)
 
 
+@pytest.mark.slow  # 55 s cold; test_two_devices_equal_one keeps the simulator's two-device check in the default suite
 def test_xor_runs_split_over_two_devices_equal_one_device():
     # runs of different lengths, so the devices' queues end at different times
     gens = ast.literal_eval(_two_device_process(XOR_SCRIPT).split(" ", 1)[1])

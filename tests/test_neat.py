@@ -348,6 +348,7 @@ def test_generation_step_compiles_once():
         state, _ = jstep(jax.random.key(g), state.population, jnp.arange(24.0) * g, state)
 
 
+@pytest.mark.slow  # 55 s cold
 def test_species_count_holds_near_the_target():
     # XOR with the published parameters.
     config, params = presets.xor()
@@ -444,6 +445,7 @@ def test_xor_evaluate_hand_built_networks():
     assert right_side.tolist() == [True, True]
 
 
+@pytest.mark.slow  # 70 s cold; width independence is also checked on two devices by make test-slow
 def test_xor_runs_do_not_depend_on_how_many_evolve_side_by_side():
     # Each run's random numbers come from its own key whatever the width. On this small config the
     # rounding matches too; on large ones XLA may round differently for other batch shapes.

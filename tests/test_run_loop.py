@@ -133,7 +133,7 @@ def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, 
     its networks or its shared table reuse the compiled programs. A batch width reached for the first
     time compiles once (each width is a program of its own)."""
     cfg = cfg_lib.base_config(method) if method != HillClimber.name else _cfg()
-    cfg.update(dict(population_size=size, trials=4, validation_trials=20, generations=8))
+    cfg.update(dict(population_size=size, trials=4, validation_trials=20, generations=5))
     cfg.sim.max_iterations = 200
     trainer = run_lib.Trainer(cfg)
     handler = _Compiles()

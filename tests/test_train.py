@@ -43,12 +43,27 @@ def _train(workdir, method, *extra, generations=GENERATIONS):
                           cwd=REPO, capture_output=True, text=True, timeout=600)
 
 
-@pytest.fixture(scope="module", params=list(METHODS))
-def trained(request, tmp_path_factory):
-    run_dir = tmp_path_factory.mktemp("runs") / request.param
-    proc = _train(run_dir, request.param)
-    assert proc.returncode == 0, proc.stderr
-    return run_dir, proc.stdout, request.param
+_RUNS: dict = {}
+
+
+@pytest.fixture(scope="session")
+def _runs(tmp_path_factory):
+    """Each method's trained run directory, built once per worker when a test first asks for it (a
+    parametrized module fixture would be torn down and built again whenever the order of the tests
+    switches between methods)."""
+    def get(method):
+        if method not in _RUNS:
+            run_dir = tmp_path_factory.mktemp("runs") / method
+            proc = _train(run_dir, method)
+            assert proc.returncode == 0, proc.stderr
+            _RUNS[method] = (run_dir, proc.stdout, method)
+        return _RUNS[method]
+    return get
+
+
+@pytest.fixture(params=list(METHODS))
+def trained(request, _runs):
+    return _runs(request.param)
 
 
 def _cfg(run_dir):
