@@ -24,9 +24,8 @@ from kx.evolve import report, streams
 from kx.evolve import run as run_lib
 from kx.sim import env
 
-# one worker runs this module, so that each method's trained run directory (a module fixture) is built
-# once rather than once per worker
-pytestmark = pytest.mark.xdist_group("train")
+# `make test` deals out whole files (--dist loadfile): one worker runs this module, so each method's
+# trained run directory is built once
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GENERATIONS = 6
 COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_frames=30",
