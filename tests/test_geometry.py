@@ -31,18 +31,18 @@ def test_pass_cells_hand_computed():
 
 
 def test_pass_cells_are_king_connected_and_reach_receiver():
-    for dx in range(-19, 20):
-        for dy in range(-19, 20):
-            if dx == 0 and dy == 0:
-                continue
-            length = math.hypot(dx, dy)
-            k = jnp.arange(0, int(length) + 3)
-            x, y = (np.asarray(v) for v in geo.pass_cell(jnp.int32(0), jnp.int32(0), jnp.int32(dx),
-                                                          jnp.int32(dy), k))
-            # the ball never skips a cell (at most one king move a sub-step), so it cannot pass through a taker
-            assert np.all(np.maximum(np.abs(np.diff(x)), np.abs(np.diff(y))) <= 1)
-            r = round(length)
-            assert (x[r], y[r]) == (dx, dy)
+    # every direction of the field at once (one compiled call; 1560 eager calls took 30 s cold)
+    d = np.array([(dx, dy) for dx in range(-19, 20) for dy in range(-19, 20) if (dx, dy) != (0, 0)], np.int32)
+    k = np.arange(0, 30, dtype=np.int32)  # |d| < 27: every pass's cells up to int(|d|) + 3
+    x, y = (np.asarray(v) for v in jax.jit(geo.pass_cell)(
+        jnp.int32(0), jnp.int32(0), jnp.asarray(d[:, :1]), jnp.asarray(d[:, 1:]), jnp.asarray(k[None])))
+    for i, (dx, dy) in enumerate(d.tolist()):
+        length = math.hypot(dx, dy)
+        n = int(length) + 3
+        # the ball never skips a cell (at most one king move a sub-step), so it cannot pass through a taker
+        assert np.all(np.maximum(np.abs(np.diff(x[i, :n])), np.abs(np.diff(y[i, :n]))) <= 1)
+        r = round(length)
+        assert (x[i, r], y[i, r]) == (dx, dy)
 
 
 def test_pack_roundtrip():
