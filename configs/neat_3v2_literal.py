@@ -6,4 +6,4 @@ from kx.evolve.config import base_config
 
 
 def get_config():
-    return base_config("literal")
+    return base_config("neat", reading="literal")

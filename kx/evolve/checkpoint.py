@@ -22,7 +22,6 @@ import time
 from typing import Any, Callable
 
 import jax
-import numpy as np
 from flax import struct
 
 #: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta)
@@ -159,16 +158,3 @@ def set_aside_after(run_dir: pathlib.Path, step: int) -> pathlib.Path | None:
     if (run_dir / "metrics.csv").is_file():
         shutil.copy2(run_dir / "metrics.csv", dest / "metrics.csv")
     return dest
-
-
-def digest(state: Any) -> str:
-    """A SHA-256 of a pytree's leaves (their bytes, shapes and dtypes), to trace a state to its source."""
-    import hashlib
-
-    h = hashlib.sha256()
-    for leaf in jax.tree.leaves(state):
-        a = np.asarray(jax.random.key_data(leaf) if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key)
-                       else leaf)
-        h.update(f"{a.dtype}{a.shape}".encode())
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()

@@ -43,8 +43,6 @@ def base_config(method: str = "neat", **section_options) -> ml_collections.Confi
     """The run loop's fields at their defaults and the config section of ``method``'s encoding
     (``section_options`` go to its ``default_config``, e.g. ``base_config("neat", reading="literal")``
     for Table 2 read literally; see :mod:`kx.neat.presets`)."""
-    if method in ("sharpneat", "literal"):  # base_config("literal"): the NEAT reading, as before
-        method, section_options = "neat", {"reading": method, **section_options}
     if method not in encodings.names():
         raise ConfigError(f"method: allowed one of {encodings.names()}, got {method!r}")
     cls = encodings.get(method)

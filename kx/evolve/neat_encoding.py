@@ -145,5 +145,4 @@ class NEATEncoding(Encoding):
     def draw(self, genotype, path: pathlib.Path):
         from kx.neat.draw import draw_genome
 
-        names = observe.input_names(self.layout, self.sim) if hasattr(observe, "input_names") else None
-        return draw_genome(jax.device_get(genotype), self.neat_config, path, input_names=names)
+        return draw_genome(jax.device_get(genotype), self.neat_config, path)

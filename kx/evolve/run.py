@@ -85,10 +85,6 @@ class Trainer:
         self.validation_eval_key = keys.eval
         self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
 
-    @property
-    def policy(self):
-        return self.encoding.policy
-
     def evaluate(self, population, starts, key, counters=None):
         """Every individual of ``population`` on ``starts`` (:class:`~kx.sim.types.EpisodeStats` [P, T])."""
         return ev.evaluate(self.encoding.policy, self.encoding.policy_params(population), starts,
