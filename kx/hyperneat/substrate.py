@@ -1,0 +1,157 @@
+"""The HyperNEAT substrate of the Bird's Eye View, built from a whole population of CPPNs at once.
+
+The substrate (SPEC §3; the paper, section 3.2 and its Fig. 1) has a ``W x W`` input layer and a ``W x
+W`` output layer, one node per field cell (``W`` = 20, the field), fully connected from inputs to
+outputs: ``N^2`` = 160,000 links for ``N = W^2`` cells. Cell ``c = x + W y`` (the index of
+:func:`kx.sim.observe.bev_obs`) sits at substrate coordinates ``((2x + 1) / W - 1, (2y + 1) / W - 1)``,
+the cell centres from -0.95 to 0.95 in steps of 0.1 for W = 20 (as the authors' substrate,
+authors-code.md §1e).
+
+**The query.** The weight of the link from input cell ``i`` at ``(x1, y1)`` to output cell ``o`` at
+``(x2, y2)`` comes from the CPPN's outputs on the inputs ``(x1, y1, x2, y2)`` (plus NEAT's bias node;
+with ``distance_input``, a fifth input ``|(x2, y2) - (x1, y1)| / (2 sqrt 2)``, in [0, 1]):
+
+* output 0, the weight: ``weight_range * clip(out_0, -1, 1)`` (the CPPN's outputs are bipolar sigmoids,
+  so the clip only matters for other output activations): weights in [-5, 5];
+* output 1, the expression (the paper: "a value indicating whether that connection can be expressed",
+  Verbancsics & Stanley's link expression output): the link exists only where ``out_1 > 0``; elsewhere
+  its weight is 0;
+* output 2, the bias of output node ``o``: ``weight_range * clip(out_2, -1, 1)`` read from the query at
+  the node's own coordinates ``(x2, y2, x2, y2)``. That is the query of the link from input cell ``o``
+  to output cell ``o``, so the biases cost no query of their own. (The authors' code reads a bias from a
+  query with the source coordinates replaced by the target's, the same point, on another output.)
+
+**One batched query per generation.** :func:`build` evaluates every CPPN of a population over all
+``N^2`` link coordinates: per genome, the inputs' contribution to every node is one ``[R, n_in] x
+[n_in, N^2]`` product, then the genome's own hidden nodes in topological order (as many as it has, not
+the capacity), each one product with the hidden values before it and its own activation function
+(selected per genome, so only that function is computed), then the outputs. Genomes go one after another
+(``lax.map``): each is a wide, fully vectorised computation over 160,000 links, and the activation of a
+hidden node is a real branch rather than every function of the set computed and masked. The result
+is the generation's table ``{"w": [P, N, N], "b": [P, N]}`` (``w[g, o, i]``: genome ``g``'s weight from
+input cell ``i`` to output cell ``o``; a row per output cell, so the few output cells a decision reads
+are contiguous), handed to the evaluator once as the shared table of :mod:`kx.sim.evaluate` and never
+copied per lane: 96 MB for 150 genomes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from kx.neat import genome as gn
+from kx.neat import network
+from kx.neat.activations import ACTIVATIONS
+from kx.neat.types import Genome, NEATConfig
+
+WEIGHT, EXPRESSION, BIAS = 0, 1, 2
+CPPN_OUTPUTS = 3
+CPPN_INPUTS = ("x1", "y1", "x2", "y2")
+
+
+@dataclasses.dataclass(frozen=True)
+class Substrate:
+    """The substrate's geometry and how CPPN outputs become weights (static and hashable).
+
+    ``resolution``: cells per side (the field size); ``distance_input``: the CPPN has a fifth input, the
+    distance between a link's endpoints; ``weight_range``: weights and biases lie in [-range, range].
+    """
+
+    resolution: int = 20
+    distance_input: bool = False
+    weight_range: float = 5.0
+
+    def __post_init__(self):
+        r = self.resolution
+        if not (isinstance(r, int) and not isinstance(r, bool) and 2 <= r <= 64):
+            raise ValueError(f"Substrate.resolution: allowed an integer in [2, 64], got {self.resolution!r}")
+        if not isinstance(self.distance_input, bool):
+            raise ValueError(f"Substrate.distance_input: allowed true or false, got {self.distance_input!r}")
+        if not (isinstance(self.weight_range, float) and 0.0 < self.weight_range <= 1e3):
+            raise ValueError(f"Substrate.weight_range: allowed a number in (0, 1000], got {self.weight_range!r}")
+
+    @property
+    def n_cells(self) -> int:
+        return self.resolution**2
+
+    @property
+    def n_inputs(self) -> int:
+        """The CPPN's inputs (NEAT adds the bias node)."""
+        return len(CPPN_INPUTS) + int(self.distance_input)
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return CPPN_INPUTS + (("d",) if self.distance_input else ())
+
+    def coordinates(self) -> np.ndarray:
+        """``[N, 2]`` substrate coordinates ``(x, y)`` of each cell ``c = x + W y``."""
+        w = self.resolution
+        c = np.arange(w * w)
+        return np.stack([(2 * (c % w) + 1) / w - 1.0, (2 * (c // w) + 1) / w - 1.0], axis=1).astype(np.float32)
+
+    def queries(self) -> np.ndarray:
+        """``[n_inputs, N * N]`` CPPN inputs of every link; link ``o * N + i`` goes from input cell ``i``
+        to output cell ``o``."""
+        xy = self.coordinates()
+        n = self.n_cells
+        src = np.tile(xy, (n, 1))  # link o * N + i: input cell i
+        dst = np.repeat(xy, n, axis=0)  # output cell o
+        rows = [src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]]
+        if self.distance_input:
+            rows.append(np.sqrt(((dst - src) ** 2).sum(axis=1)) / (2 * math.sqrt(2.0)))
+        return np.stack(rows).astype(np.float32)
+
+    def check_cppn(self, config: NEATConfig) -> None:
+        if (config.n_inputs, config.n_outputs) != (self.n_inputs, CPPN_OUTPUTS):
+            raise ValueError(f"CPPN config: {config.n_inputs} inputs and {config.n_outputs} outputs; this substrate "
+                             f"queries {self.n_inputs} inputs {self.input_names} and {CPPN_OUTPUTS} outputs "
+                             "(weight, expression, bias)")
+
+
+def _switch(act: jax.Array, x: jax.Array, options: tuple[str, ...]) -> jax.Array:
+    if len(options) == 1:
+        return ACTIVATIONS[options[0]](x)
+    return jax.lax.switch(act, [ACTIVATIONS[name] for name in options], x)
+
+
+def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config: NEATConfig) -> jax.Array:
+    """Outputs ``[n_outputs, L]`` of one CPPN's network (not vmapped) for inputs ``x [n_inputs, L]``,
+    computing only its first ``n_hidden`` hidden rows (the genome's hidden nodes, a prefix of its slots)."""
+    h, o, n_in = config.n_hidden, config.n_outputs, config.n_inputs
+    opts = config.activation_options
+    z = jnp.dot(net.w_in[:, :n_in], x, precision=jax.lax.Precision.HIGHEST) + net.w_in[:, n_in:]  # [R, L]
+    out = z[h:]
+    if h:
+        def body(i, hid):
+            zi = z[i] + jnp.dot(net.w_hid[i], hid, precision=jax.lax.Precision.HIGHEST)
+            return hid.at[i].set(_switch(net.act[i], zi, opts))
+
+        hid = jax.lax.fori_loop(0, n_hidden, body, jnp.zeros((h, x.shape[1]), jnp.float32))
+        out = out + jnp.dot(net.w_hid[h:], hid, precision=jax.lax.Precision.HIGHEST)
+    return jnp.stack([_switch(net.act[h + k], out[k], opts) for k in range(o)])
+
+
+@functools.partial(jax.jit, static_argnames=("config", "substrate"))
+def build(population: Genome, config: NEATConfig, substrate: Substrate) -> dict:
+    """The substrates of a population of CPPNs (leading axis P): ``{"w": [P, N, N], "b": [P, N]}``
+    (see the module docstring)."""
+    substrate.check_cppn(config)
+    n, r = substrate.n_cells, substrate.weight_range
+    x = jnp.asarray(substrate.queries())
+    nets = jax.vmap(lambda g: network.build(g, config))(population)
+    hidden = jax.vmap(gn.n_hidden)(population)
+
+    def one(args):
+        net, nh = args
+        out = cppn_outputs(net, nh, x, config)  # [3, N * N]
+        w = jnp.where(out[EXPRESSION] > 0.0, r * jnp.clip(out[WEIGHT], -1.0, 1.0), 0.0).reshape(n, n)
+        b = r * jnp.clip(jnp.diagonal(out[BIAS].reshape(n, n)), -1.0, 1.0)
+        return w, b
+
+    w, b = jax.lax.map(one, (nets, hidden))
+    return {"w": w, "b": b}
