@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Genome, NEATConfig, NEATParams
+from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, MAX_SELECT_COUNT, OUTPUT, Genome, NEATConfig, NEATParams
 
 I32 = jnp.int32
 
@@ -196,9 +196,51 @@ def _symmetric_unit(bits: jax.Array) -> jax.Array:
 
 def mutate_weights(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
     """A weight mutation by ``params.weight_scheme``: 0, :func:`mutate_weights_stanley`; 1,
-    :func:`mutate_weights_sharpneat`. ``genes``: see :func:`_gene_bits`."""
-    return jax.lax.cond(params.weight_scheme == 1, lambda: mutate_weights_sharpneat(key, g, params, genes),
-                        lambda: mutate_weights_stanley(key, g, params, genes))
+    :func:`mutate_weights_sharpneat`; 2, :func:`mutate_weights_hyperneat`. ``genes``: see
+    :func:`_gene_bits`. One ``lax.switch``: with the scheme unbatched (the population's vmap), only the
+    chosen branch runs."""
+    branches = (lambda: mutate_weights_stanley(key, g, params, genes),
+                lambda: mutate_weights_sharpneat(key, g, params, genes),
+                lambda: mutate_weights_hyperneat(key, g, params, genes))
+    return jax.lax.switch(jnp.clip(jnp.asarray(params.weight_scheme, I32), 0, 2), branches)
+
+
+def _gene_normal(key: jax.Array, valid: jax.Array, genes: int | None) -> jax.Array:
+    """``[max_conns]`` N(0, 1) values, independent across ``valid`` columns (drawn per gene, as
+    :func:`_gene_bits`)."""
+    c = valid.shape[0]
+    if genes is None or genes >= c:
+        return jax.random.normal(key, (c,))
+    return jax.random.normal(key, (genes,))[jnp.minimum(mask_rank(valid), genes - 1)]
+
+
+def mutate_weights_hyperneat(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
+    """The authors' HyperNEAT weight mutation (``HN/Sources/KeepAway/NEAT/Evolutions.cs``; SPEC §2): one
+    of four kinds. With probability ``weight_all_share`` every gene gets a step N(0, ``weight_step_sigma``);
+    with ``weight_fraction_share`` each gene, with probability ``weight_select_fraction``, gets that step;
+    with ``weight_reset_share`` ``weight_select_count`` distinct random genes are reset to
+    U(-weight_range, weight_range); otherwise ``weight_select_count`` distinct random genes get
+    U(-weight_perturb_power, weight_perturb_power). Then clipped to the weight range. ``genes``: see
+    :func:`_gene_bits`."""
+    k_kind, k_bits, k_norm = jax.random.split(key, 3)
+    u = jax.random.uniform(k_kind)
+    a, f, r = params.weight_all_share, params.weight_fraction_share, params.weight_reset_share
+    kind = (u >= a).astype(I32) + (u >= a + f) + (u >= a + f + r)  # 0 all, 1 fraction, 2 reset, 3 uniform step
+    bits = _gene_bits(k_bits, g.conn_valid, 2, genes)
+    unit = (bits[0] >> 8).astype(jnp.float32) * jnp.float32(2.0 ** -24)  # U[0, 1) per gene
+    # weight_select_count genes: the smallest scores, taken by index (ties cannot pick a third)
+    c = g.conn_valid.shape[0]
+    k = min(MAX_SELECT_COUNT, c)
+    _, idx = jax.lax.top_k(-jnp.where(g.conn_valid, unit, 2.0), k)
+    by_count = jnp.zeros((c,), bool).at[idx].set(jnp.arange(k) < params.weight_select_count)
+    chosen = g.conn_valid & jnp.where(kind == 0, True, jnp.where(kind == 1, unit < params.weight_select_fraction,
+                                                                   by_count))
+    sym = _symmetric_unit(bits[1])  # U(-1, 1): a reset or a uniform step (a gene gets one or the other)
+    gauss = g.conn_weight + params.weight_step_sigma * _gene_normal(k_norm, g.conn_valid, genes)
+    new = jnp.where(kind <= 1, gauss, jnp.where(kind == 2, sym * params.weight_range,
+                                                g.conn_weight + sym * params.weight_perturb_power))
+    w = jnp.clip(jnp.where(chosen, new, g.conn_weight), -params.weight_range, params.weight_range)
+    return g.replace(conn_weight=jnp.where(g.conn_valid, w, 0.0))
 
 
 def mutate_weights_sharpneat(key: jax.Array, g: Genome, params: NEATParams, genes: int | None = None) -> Genome:
@@ -216,11 +258,7 @@ def mutate_weights_sharpneat(key: jax.Array, g: Genome, params: NEATParams, gene
     score = jnp.where(g.conn_valid, unit, 2.0)
     kth = -jax.lax.top_k(-score, 3)[0][jnp.minimum(selection, 2)]  # the (selection+1)-th smallest score
     chosen = g.conn_valid & jnp.where(selection == 3, unit < params.weight_select_fraction, score <= kth)
-    c = g.conn_valid.shape[0]
-    if genes is None or genes >= c:
-        z = jax.random.normal(k_norm, (c,))
-    else:
-        z = jax.random.normal(k_norm, (genes,))[jnp.minimum(mask_rank(g.conn_valid), genes - 1)]
+    z = _gene_normal(k_norm, g.conn_valid, genes)
     sigma = jnp.where(small, params.weight_small_sigma, params.weight_large_sigma)
     fresh = _symmetric_unit(bits[1]) * params.weight_init_range
     w = jnp.where(chosen, jnp.where(reset, fresh, g.conn_weight + sigma * z), g.conn_weight)

@@ -33,6 +33,9 @@ from kx.neat.activations import ACTIVATIONS
 
 INPUT, BIAS, HIDDEN, OUTPUT = 0, 1, 2, 3
 EMPTY = -1
+# The most genes weight_scheme 2 picks by count (NEATParams.weight_select_count): the size of a top-k,
+# a static shape, while the count itself stays a traced parameter.
+MAX_SELECT_COUNT = 8
 
 
 class NEATError(ValueError):
@@ -168,11 +171,11 @@ class NEATParams:
     respeciate: int = 0
     # Weights.
     weight_range: float = 5.0  # weights are clipped to [-weight_range, weight_range]
-    weight_init_range: float = 1.0  # initial, new-link and replacement weights ~ U(-r, r)
+    weight_init_range: float = 1.0  # initial, new-link and (schemes 0, 1) replacement weights ~ U(-r, r)
     weight_mutate_prob: float = 0.8  # chance that an offspring without a structural mutation gets a weight mutation
-    # How a weight mutation changes the weights. weight_scheme 0 (Stanley's NEAT): each connection
-    # gene, with probability weight_mutate_rate, is perturbed by U(-p, p) (p = weight_perturb_power)
-    # with probability weight_perturb_prob, else replaced.
+    # How a weight mutation changes the weights (every scheme clips to weight_range after). weight_scheme
+    # 0 (Stanley's NEAT): each connection gene, with probability weight_mutate_rate, is perturbed by
+    # U(-p, p) (p = weight_perturb_power) with probability weight_perturb_prob, else replaced.
     weight_scheme: int = 0
     weight_mutate_rate: float = 1.0
     weight_perturb_prob: float = 0.9
@@ -187,6 +190,20 @@ class NEATParams:
     weight_small_share: float = 0.455
     weight_large_share: float = 0.454
     weight_select_fraction: float = 0.02
+    # weight_scheme 2 (the authors' HyperNEAT code, Evolutions.cs): one of four kinds, drawn per weight
+    # mutation: with probability weight_all_share every gene gets a Gaussian step of sigma
+    # weight_step_sigma; with weight_fraction_share each gene, with probability weight_select_fraction,
+    # gets that step; with weight_reset_share weight_select_count distinct random genes are reset to
+    # U(-weight_range, weight_range) (the authors reset over the whole range, not weight_init_range);
+    # otherwise (the rest) weight_select_count distinct random genes get U(-p, p), p =
+    # weight_perturb_power. The defaults below are the authors' (0.25, 0.25, 0.1, the rest 0.4; sigma
+    # 0.3; 2 genes); kx.hyperneat.presets.cppn also sets weight_select_fraction 0.25 and
+    # weight_perturb_power 1.25, which mean there what they mean in schemes 1 and 0.
+    weight_all_share: float = 0.25
+    weight_fraction_share: float = 0.25
+    weight_reset_share: float = 0.1
+    weight_step_sigma: float = 0.3
+    weight_select_count: int = 2  # 1..MAX_SELECT_COUNT
     # Structure: an offspring gets at most one structural mutation, add node with add_node_prob, add
     # link with add_link_prob, delete link with delete_link_prob (one draw: a roulette).
     add_node_prob: float = 0.03
@@ -211,7 +228,8 @@ class NEATParams:
         probs = ("weight_mutate_prob", "weight_mutate_rate", "weight_perturb_prob", "add_node_prob",
                  "add_link_prob", "delete_link_prob", "reenable_prob", "activation_mutate_prob",
                  "disable_inherit_prob", "mutation_only_prob", "interspecies_prob", "weight_small_share",
-                 "weight_large_share", "weight_select_fraction")
+                 "weight_large_share", "weight_select_fraction", "weight_all_share", "weight_fraction_share",
+                 "weight_reset_share")
         for f in probs:
             v = float(getattr(self, f))
             if not 0.0 <= v <= 1.0:
@@ -220,13 +238,22 @@ class NEATParams:
             raise NEATError("NEATParams.add_node_prob + add_link_prob + delete_link_prob must be at most 1")
         if float(self.weight_small_share) + float(self.weight_large_share) > 1.0:
             raise NEATError("NEATParams.weight_small_share + weight_large_share must be at most 1")
-        if int(self.weight_scheme) != self.weight_scheme or int(self.weight_scheme) not in (0, 1):
+        if (float(self.weight_all_share) + float(self.weight_fraction_share) + float(self.weight_reset_share)
+                > 1.0 + 1e-6):
+            raise NEATError("NEATParams.weight_all_share + weight_fraction_share + weight_reset_share must be at "
+                            "most 1 (the rest is the share of uniform steps on weight_select_count genes)")
+        if int(self.weight_scheme) != self.weight_scheme or int(self.weight_scheme) not in (0, 1, 2):
             raise NEATError(f"NEATParams.weight_scheme = {self.weight_scheme}: allowed 0 (Stanley: per-gene "
-                            "uniform perturbation or replacement) or 1 (SharpNEAT: Gaussian steps on a few genes)")
+                            "uniform perturbation or replacement), 1 (SharpNEAT: Gaussian steps on a few genes) or 2 "
+                            "(the authors' HyperNEAT: Gaussian steps on all or some genes, or resets or uniform steps "
+                            "on weight_select_count genes)")
+        c = self.weight_select_count
+        if int(c) != c or not 1 <= int(c) <= MAX_SELECT_COUNT:
+            raise NEATError(f"NEATParams.weight_select_count = {c}: allowed an integer in 1..{MAX_SELECT_COUNT}")
         if not 0.0 < float(self.initial_link_fraction) <= 1.0:
             raise NEATError(f"NEATParams.initial_link_fraction = {self.initial_link_fraction}: allowed (0, 1]")
         for f in ("c1", "c2", "c3", "threshold_step", "weight_perturb_power", "weight_small_sigma",
-                  "weight_large_sigma"):
+                  "weight_large_sigma", "weight_step_sigma"):
             if not float(getattr(self, f)) >= 0.0:
                 raise NEATError(f"NEATParams.{f} = {getattr(self, f)}: allowed a value >= 0")
         for f in ("compat_threshold", "threshold_min", "weight_range", "weight_init_range"):
