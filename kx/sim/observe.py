@@ -129,13 +129,28 @@ def decode_ranked(outputs: jax.Array, state: State, config: KeepAwayConfig) -> j
     return pick(teammate_order(state, config), choice)
 
 
-def bev_obs(state: State, config: KeepAwayConfig) -> jax.Array:
-    """Bird's Eye View image ``[W*W, *B]`` (cell ``x + W*y``): keepers 1.0, takers -1.0, cells strictly
-    between the holder and each teammate +0.3 and each taker -0.3; values add, then clip to [-1, 1].
+BEV_IMAGES = ("paper", "authors")
+BEV_AUTHORS_HOLDER, BEV_AUTHORS_TEAMMATE, BEV_AUTHORS_TAKER = 1.0, 0.5, -1.0
+
+
+def bev_obs(state: State, config: KeepAwayConfig, image: str = "paper") -> jax.Array:
+    """Bird's Eye View image ``[W*W, *B]`` (cell ``x + W*y``).
+
+    ``image="paper"`` (SPEC §1): keepers 1.0, takers -1.0, cells strictly between the holder and each
+    teammate +0.3 and each taker -0.3; values add, then clip to [-1, 1].
+
+    ``image="authors"`` (the authors' code, ``HyperNEATKeepawayPlayer.cs`` 142-296): the holder's cell
+    +1.0, each teammate's cell +0.5, each taker's cell -1.0, the path cells to a teammate
+    ``+1/(1+d)`` and to a taker ``-1/(1+d)``, ``d`` the Euclidean distance in cells from the holder to
+    that agent; values add and are not clipped (the source accumulates with ``+=``/``-=`` and sets the
+    inputs as they are). The path cells are kx's digital line, as for ``"paper"``.
 
     The straight path between two cells is the digital line ``S + round(i * (A - S) / n)``, ``i = 1 ..
     n-1``, with ``n`` their Chebyshev distance and halves rounded up.
     """
+    if image not in BEV_IMAGES:
+        raise ValueError(f"image: allowed {BEV_IMAGES}, got {image!r}")
+    authors = image == "authors"
     w = config.field_size
     bshape = state.holder.shape
     cells = jnp.arange(w * w, dtype=jnp.int32).reshape((w * w,) + (1,) * len(bshape))
@@ -154,15 +169,22 @@ def bev_obs(state: State, config: KeepAwayConfig) -> jax.Array:
         hit = jnp.where(x_major, gy == other, gx == other)
         return hit & (i >= 1) & (i <= n - 1)
 
+    def path_value(ax, ay, sign):
+        if not authors:
+            return BEV_PATH_KEEPER if sign > 0 else BEV_PATH_TAKER
+        d = jnp.sqrt(((ax - sx) ** 2 + (ay - sy) ** 2).astype(jnp.float32))
+        return sign / (1.0 + d)
+
     for i in range(config.n_keepers):
         ax, ay = state.keeper_x[i], state.keeper_y[i]
-        img = img + jnp.where((gx == ax) & (gy == ay), BEV_KEEPER, 0.0)
-        img = img + jnp.where(on_path(ax, ay) & (h != i), BEV_PATH_KEEPER, 0.0)
+        v = jnp.where(h == i, BEV_AUTHORS_HOLDER, BEV_AUTHORS_TEAMMATE) if authors else BEV_KEEPER
+        img = img + jnp.where((gx == ax) & (gy == ay), v, 0.0)
+        img = img + jnp.where(on_path(ax, ay) & (h != i), path_value(ax, ay, 1.0), 0.0)
     for j in range(config.n_takers):
         ax, ay = state.taker_x[j], state.taker_y[j]
-        img = img + jnp.where((gx == ax) & (gy == ay), BEV_TAKER, 0.0)
-        img = img + jnp.where(on_path(ax, ay), BEV_PATH_TAKER, 0.0)
-    return jnp.clip(img, -1.0, 1.0)
+        img = img + jnp.where((gx == ax) & (gy == ay), BEV_AUTHORS_TAKER if authors else BEV_TAKER, 0.0)
+        img = img + jnp.where(on_path(ax, ay), path_value(ax, ay, -1.0), 0.0)
+    return img if authors else jnp.clip(img, -1.0, 1.0)
 
 
 def decode_bev(outputs: jax.Array, state: State, config: KeepAwayConfig, literal: bool = False) -> jax.Array:
