@@ -63,7 +63,7 @@ def test_substrate_coordinates_and_link_order():
     np.testing.assert_allclose(q[:, 12 * 400 + 3 + 20 * 7], [-0.65, -0.25, 0.25, -0.95], atol=1e-6)
     d = sb.Substrate(distance_input=True).queries()
     assert d.shape == (5, 160_000)
-    np.testing.assert_allclose(d[4, 12 * 400 + 3 + 20 * 7], math.hypot(0.9, 0.7) / (2 * math.sqrt(2)), rtol=1e-6)
+    np.testing.assert_allclose(d[4, 12 * 400 + 3 + 20 * 7], math.hypot(0.9, 0.7), rtol=1e-6)
     with pytest.raises(ValueError, match="resolution"):
         sb.Substrate(resolution=1)
 

@@ -61,7 +61,7 @@ def get(name: str) -> type["Encoding"]:
     return ENCODINGS[name]
 
 
-BUILTIN = ("neat", "cma_es")
+BUILTIN = ("neat", "hyperneat", "cma_es")
 
 
 def names() -> tuple[str, ...]:
@@ -72,7 +72,7 @@ def names() -> tuple[str, ...]:
 
 def _load_builtin() -> None:
     # the built-in encodings register themselves on import
-    from kx.evolve import cma_es, neat_encoding  # noqa: F401
+    from kx.evolve import cma_es, hyperneat_encoding, neat_encoding  # noqa: F401
 
 
 def stack(genotypes: list) -> Any:

@@ -9,7 +9,8 @@ authors-code.md §1e).
 
 **The query.** The weight of the link from input cell ``i`` at ``(x1, y1)`` to output cell ``o`` at
 ``(x2, y2)`` comes from the CPPN's outputs on the inputs ``(x1, y1, x2, y2)`` (plus NEAT's bias node;
-with ``distance_input``, a fifth input ``|(x2, y2) - (x1, y1)| / (2 sqrt 2)``, in [0, 1]):
+with ``distance_input``, a fifth input ``|(x2, y2) - (x1, y1)|``, the distance in substrate
+coordinates: 0.1 per cell, at most 1.9 sqrt 2):
 
 * output 0, the weight: ``weight_range * clip(out_0, -1, 1)`` (the CPPN's outputs are bipolar sigmoids,
   so the clip only matters for other output activations): weights in [-5, 5];
@@ -38,7 +39,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -103,7 +103,7 @@ class Substrate:
         dst = np.repeat(xy, n, axis=0)  # output cell o
         rows = [src[:, 0], src[:, 1], dst[:, 0], dst[:, 1]]
         if self.distance_input:
-            rows.append(np.sqrt(((dst - src) ** 2).sum(axis=1)) / (2 * math.sqrt(2.0)))
+            rows.append(np.sqrt(((dst - src) ** 2).sum(axis=1)))
         return np.stack(rows).astype(np.float32)
 
     def check_cppn(self, config: NEATConfig) -> None:

@@ -1,0 +1,150 @@
+"""HyperNEAT as an encoding of the run loop: ``method = "hyperneat"``, CPPNs that paint a Bird's Eye View
+substrate, which plays every keep-away task unchanged.
+
+The learner is kx's NEAT (:mod:`kx.neat`) on CPPN genomes (:func:`kx.hyperneat.presets.cppn`: the
+paper's activation set, the authors' HyperNEAT mutation rates). Each generation
+:func:`kx.hyperneat.substrate.build` queries every CPPN over the substrate's 160,000 links at once, and
+the population's substrates go to the evaluator as one shared table; the holder decides with the Bird's
+Eye View policy (:func:`kx.hyperneat.bev.bev_policy`). The substrate's size is the field's, not the
+number of players, so a CPPN evolved in 3v2 plays 4v3, 5v3 and 6v4 as it is (``kx.evaluate --task``).
+
+Config section ``hyperneat``: every :class:`~kx.neat.types.NEATParams` field (the CPPN rates), the
+CPPN's ``activations`` (the set new hidden nodes draw from) and ``output_activation``, its capacity
+(``max_hidden``, ``extra_conns``, ``extra_genes``, ``species_capacity``, ``max_add_links``, as in the
+``neat`` section), and the substrate and policy: ``resolution`` (must equal ``sim.field_size``),
+``distance_input``, ``image`` (``"paper"`` or ``"authors"``), ``decision`` (``"cells"`` or
+``"literal"``) and ``substrate_activation`` (the substrate's output nodes). The run's ``layout`` is
+``"bev"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+
+from kx.evolve.config import ConfigError
+from kx.evolve.encoding import register
+from kx.evolve.neat_encoding import NEATEncoding, _int, _need, neat_params_fields
+from kx.neat.activations import ACTIVATIONS
+from kx.neat.algorithm import NEAT
+from kx.neat.types import NEATError, NEATParams
+
+IMAGES = ("paper", "authors")
+DECISIONS = ("cells", "literal")
+
+
+@register
+class HyperNEATEncoding(NEATEncoding):
+    name = "hyperneat"
+    section = "hyperneat"
+    layouts = ("bev",)
+
+    @classmethod
+    def default_config(cls) -> ml_collections.ConfigDict:
+        from kx.hyperneat import presets
+
+        ncfg, nparams = presets.cppn()
+        c = neat_params_fields(nparams)
+        c.update(activations=tuple(ncfg.activation_options), output_activation=ncfg.output_activation,
+                 max_hidden=ncfg.n_hidden, species_capacity=ncfg.species_capacity,
+                 extra_conns=ncfg.max_conns - ncfg.n_initial_conns, extra_genes=ncfg.genes - ncfg.n_initial_conns,
+                 max_add_links=ncfg.max_add_links, resolution=20, distance_input=True, image="authors",
+                 decision="cells", substrate_activation="bipolar_sigmoid")
+        return ml_collections.ConfigDict(c)
+
+    @classmethod
+    def defaults(cls) -> dict:
+        return {"layout": "bev"}
+
+    def __init__(self, cfg, sim, sim_params):
+        from kx.hyperneat import presets
+        from kx.hyperneat.substrate import CPPN_OUTPUTS, Substrate
+
+        self.cfg, self.sim, self.sim_params = cfg, sim, sim_params
+        self.layout = cfg.layout
+        self.population_size = cfg.population_size
+        n = dict(cfg.hyperneat)
+        for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes", "max_add_links"):
+            low = 1 if f == "species_capacity" else 0
+            _need(_int(n[f]) and n[f] >= low, f"hyperneat.{f}", f"an integer >= {low}", n[f])
+        _need(n["species_capacity"] <= cfg.population_size, "hyperneat.species_capacity",
+              f"at most population_size ({cfg.population_size})", n["species_capacity"])
+        _need(n["extra_genes"] <= n["extra_conns"], "hyperneat.extra_genes",
+              f"at most hyperneat.extra_conns ({n['extra_conns']})", n["extra_genes"])
+        _need(n["max_add_links"] <= cfg.population_size, "hyperneat.max_add_links",
+              f"an integer in [0, population_size = {cfg.population_size}] (0: max(8, population_size // 8))",
+              n["max_add_links"])
+        acts = n["activations"]
+        _need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
+                                                                       for a in acts)
+              and len(set(acts)) == len(acts), "hyperneat.activations",
+              f"distinct names from {sorted(ACTIVATIONS)}", acts)
+        for f in ("output_activation", "substrate_activation"):
+            _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"hyperneat.{f}", f"one of {sorted(ACTIVATIONS)}",
+                  n[f])
+        _need(isinstance(n["image"], str) and n["image"] in IMAGES, "hyperneat.image", f"one of {IMAGES}", n["image"])
+        _need(isinstance(n["decision"], str) and n["decision"] in DECISIONS, "hyperneat.decision",
+              f"one of {DECISIONS}", n["decision"])
+        _need(isinstance(n["distance_input"], bool), "hyperneat.distance_input", "true or false", n["distance_input"])
+        _need(n["resolution"] == sim.field_size and _int(n["resolution"]), "hyperneat.resolution",
+              f"sim.field_size ({sim.field_size}): one substrate node per field cell", n["resolution"])
+        self.substrate = Substrate(resolution=n["resolution"], distance_input=n["distance_input"],
+                                   weight_range=float(n["weight_range"]))
+        self.image, self.decision, self.substrate_activation = n["image"], n["decision"], n["substrate_activation"]
+        opts = tuple(dict.fromkeys(tuple(acts) + (n["output_activation"],)))
+        try:
+            self.neat_config, _ = presets.cppn(
+                n_inputs=self.substrate.n_inputs, n_outputs=CPPN_OUTPUTS, population_size=cfg.population_size,
+                max_nodes=self.substrate.n_inputs + 1 + CPPN_OUTPUTS + n["max_hidden"],
+                max_conns=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_conns"],
+                max_genes=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_genes"],
+                species_capacity=n["species_capacity"], activation_options=opts,
+                hidden_activation=acts[0], output_activation=n["output_activation"],
+                max_add_links=n["max_add_links"])
+            self.neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
+            self.neat_params.validate()
+            if self.neat_params.target_species > self.neat_config.species_capacity:
+                raise NEATError(f"NEATParams.target_species = {self.neat_params.target_species}: allowed at most "
+                                f"hyperneat.species_capacity = {self.neat_config.species_capacity}")
+        except NEATError as e:
+            msg = str(e).replace("NEATParams.", "hyperneat.").replace("NEATConfig.", "hyperneat.")
+            raise ConfigError(msg) from None
+        self.neat = NEAT(self.neat_config, self.neat_params)
+
+    def policy_for(self, sim):
+        from kx.hyperneat.bev import bev_policy
+
+        if sim.field_size != self.substrate.resolution:
+            r = self.substrate.resolution
+            raise ConfigError(f"task: the run's substrate has {r} x {r} nodes per layer; {sim.name}'s field is "
+                              f"{sim.field_size} x {sim.field_size} cells")
+        return bev_policy(sim, image=self.image, decision=self.decision, activation=self.substrate_activation)
+
+    def policy_params(self, population):
+        from kx.hyperneat.substrate import build
+
+        return build(population, self.neat_config, self.substrate)
+
+    def describe(self) -> str:
+        c, s = self.neat_config, self.substrate
+        return (f"hyperneat (CPPN {c.n_inputs} inputs {s.input_names}, 3 outputs; substrate {s.resolution}x"
+                f"{s.resolution} -> {s.resolution}x{s.resolution}, {s.n_cells ** 2} links; image {self.image}, "
+                f"decision {self.decision})")
+
+    def draw(self, genotype, path: pathlib.Path):
+        """The champion's substrate (``champion.png``) and its CPPN (``champion_cppn.png`` beside it)."""
+        from kx.hyperneat.draw import draw_substrate
+        from kx.neat.draw import draw_genome
+
+        path = pathlib.Path(path)
+        g = jax.device_get(genotype)
+        draw_genome(g, self.neat_config, path.with_name(path.stem + "_cppn.png"),
+                    input_names=list(self.substrate.input_names) + ["bias"], output_names=["weight", "expr", "bias"],
+                    title="CPPN")
+        table = self.policy_params(jax.tree.map(lambda a: jnp.asarray(a)[None], g))
+        return draw_substrate({k: np.asarray(v[0]) for k, v in table.items()}, self, path)
