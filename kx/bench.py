@@ -12,9 +12,13 @@ baseline is measured in the same run (these machines are shared and noisy).
   neat-python's first 20 runs against SPEC §2's anchor.
 * ``generation``: seconds per generation of ``python -m kx.train``'s default config, split into
   evaluation and evolution, with the share of executed simulator steps that were live.
-* ``learning``: the default config's validated champions over 10 seeds on 1000 test states, beside the
-  same budget of CMA-ES (evosax, ``configs/cma_es_3v2.py``) on a linear policy of the same layout, through
-  the same run loop.
+* ``learning``: the validated champions of the default config (NEAT) and of HyperNEAT over 10 seeds on
+  1000 test states, beside the same budget of CMA-ES (evosax, ``configs/cma_es_3v2.py``) on a linear
+  policy of the 13/3 layout, through the same run loop; and the same 3v2 champions zero-shot on 4v3,
+  5v3 and 6v4.
+* ``hyperneat``: seconds per generation of HyperNEAT and of NEAT (3v2, 150 x 30) on the same start
+  states in one run, split into building the policies (the substrates), evaluation, evolution and
+  validation.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -375,17 +379,91 @@ def bench_generation(args) -> None:
     print(f"generation: {total:.3f} s (ratio {t / e:.4f} vs evaluation)")
 
 
+def _timed_generations(cfg, generations: int, log_name: str):
+    """``generations`` generations of ``cfg`` through the run loop, each split into building the
+    policies' parameters (NEAT: the networks; HyperNEAT: the substrates), playing the trials, evolution
+    (``tell``) and the champion's validation. Returns one dict per generation."""
+    import jax
+
+    from kx.evolve import report
+    from kx.evolve import run as run_lib
+
+    trainer = run_lib.Trainer(cfg)
+    enc = trainer.encoding
+    build, built = enc.policy_params, []
+
+    def timed_build(population):  # the loop calls it once per evaluation: the generation's, then validation's
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(build(population))
+        built.append(time.perf_counter() - t0)
+        return out
+
+    enc.policy_params = timed_build
+    state, rows = trainer.init(), []
+    for _ in range(generations):
+        built.clear()
+        res = trainer.step(state)
+        state, row = res.state, res.row
+        row = dict(row, build_seconds=built[0], play_seconds=row["eval_seconds"] - built[0])
+        rows.append(row)
+        print(f"{log_name} " + report.progress_line(row, generations, None, enc)
+              + f"  build {row['build_seconds']:.3f} s  play {row['play_seconds']:.3f} s  live steps "
+              f"{row['live_steps']}", flush=True)
+    return trainer, rows
+
+
+def bench_hyperneat(args) -> None:
+    """Seconds per generation of HyperNEAT (``configs/hyperneat_3v2.py``) and of NEAT (the default config)
+    in one run, on the same 3v2 start states (the training stream of ``--seed``: each generation's 30
+    states are the same for both) and the same population (150 x 30), through the run loop, split into
+    building the policies (HyperNEAT: every CPPN queried over the substrate's 160,000 links; NEAT: the
+    networks), evaluation (playing the 4500 episodes), evolution (``tell``) and the champion's
+    validation. The first ``--skip`` generations compile and are left out of the medians, which are
+    reported with the live lane-steps (episode lengths differ between the two methods' teams) and the
+    cost per live step."""
+    import numpy as np
+
+    from kx.evolve import config as cfg_lib
+
+    runs = {}
+    for name, path in (("neat", None), ("hyperneat", "configs/hyperneat_3v2.py")):
+        cfg = cfg_lib.load(path, [f"seed={args.seed}", f"generations={args.generations}", "gif=false"])
+        t0 = time.perf_counter()
+        trainer, rows = _timed_generations(cfg, args.generations, name)
+        runs[name] = (trainer, rows, time.perf_counter() - t0)
+    med = {}
+    for name, (trainer, rows, wall) in runs.items():
+        body = rows[args.skip:] or rows
+        m = {k: float(np.median([r[k] for r in body])) for k in (
+            "generation_seconds", "build_seconds", "play_seconds", "evolve_seconds", "validation_seconds",
+            "live_steps")}
+        first = rows[0]["generation_seconds"]
+        med[name] = m
+        print(f"{name}: {trainer.encoding.describe()}; median over generations {min(args.skip, len(rows) - 1)}.."
+              f"{len(rows) - 1}: {m['generation_seconds']:.3f} s per generation = build {m['build_seconds']:.3f} s "
+              f"+ evaluation {m['play_seconds']:.3f} s + evolution {m['evolve_seconds']:.4f} s + validation "
+              f"{m['validation_seconds']:.3f} s; {m['live_steps'] / 1e6:.2f}M live lane-steps per generation, "
+              f"{m['play_seconds'] / max(m['live_steps'], 1) * 1e9:.0f} ns each; generation 0 (compiling) "
+              f"{first:.1f} s; {wall:.0f} s in all")
+    h, n = med["hyperneat"], med["neat"]
+    per_step = (h["play_seconds"] / h["live_steps"]) / (n["play_seconds"] / n["live_steps"])
+    print(f"per live lane-step, HyperNEAT's evaluation costs {per_step:.2f}x NEAT's")
+    ratio = h["generation_seconds"] / n["generation_seconds"]
+    print(f"hyperneat: {h['generation_seconds']:.3f} s/generation (ratio {ratio:.2f} vs neat)")
+
+
 LEARNING_TEST_SEED = 2026  # the test stream of this seed: the same 1000 test states for every run
 
 
 def _train_and_test(config: str | None, seeds, starts, keys, log_name: str):
     """Each seed's run of ``config`` through the run loop (no run directory), its validated champion
-    played on ``starts``; returns the test figures, the validated-champion curves and the seconds."""
+    played on ``starts``; returns the test figures, the validated-champion curves, the seconds, and
+    each run's trainer and champion."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve.encoding import stack
 
-    test, curves, secs = [], [], []
+    test, curves, secs, champions = [], [], [], []
     for seed in seeds:
         t0 = time.perf_counter()
         trainer = run_lib.Trainer(cfg_lib.load(config, ["gif=false", f"seed={seed}"]))
@@ -394,31 +472,37 @@ def _train_and_test(config: str | None, seeds, starts, keys, log_name: str):
         test.append(f)
         curves.append([r["best_validation"] for r in rows])
         secs.append(time.perf_counter() - t0)
+        champions.append((trainer, state.champion))
         print(f"{log_name} seed {seed}: test {f:.4f} (validated champion of generation "
               f"{int(state.champion_generation) + 1}, validation {float(state.champion_validation):.4f}; "
               f"{secs[-1]:.0f} s)", flush=True)
-    return test, curves, secs
+    return test, curves, secs, champions
 
 
 def bench_learning(args) -> None:
     """The default config of ``python -m kx.train`` (NEAT, 3v2, 150 genomes x 20 generations of 30 shared
-    trials) over ``--seeds`` seeds, beside the same budget of CMA-ES (``configs/cma_es_3v2.py``: evosax,
+    trials) and the default HyperNEAT config (``configs/hyperneat_3v2.py``, the same population and
+    budget) over ``--seeds`` seeds, beside the same budget of CMA-ES (``configs/cma_es_3v2.py``: evosax,
     default parameters, population 50, initial step size 1, mean starting at zero, 60 generations of 30
-    trials, a linear policy of the same 13/3 layout; :mod:`kx.evolve.cma_es`). Both run through the same
+    trials, a linear policy of the 13/3 layout; :mod:`kx.evolve.cma_es`). All run through the same
     run loop, and each run's champion is its validated champion (the generation champion by training
     fitness that did best on the run's validation states). Every champion and the hand-coded policies
     play the same ``--test-trials`` test states (the test stream of seed 2026, which no run trains or
-    validates on) with the same kick noise."""
+    validates on) with the same kick noise. Zero-shot transfer: the same 3v2 champions, unchanged, on
+    the test states of 4v3, 5v3 and 6v4 (HyperNEAT's substrate and the fixed 13/3 layout fit every
+    task), beside the hand-coded policies there."""
     import numpy as np
 
     from kx.evolve import config as cfg_lib
     from kx.evolve import streams
+    from kx.evolve.encoding import stack
     from kx.sim import env
     from kx.sim import evaluate as ev
     from kx.sim.policies import BASELINES
+    from kx.sim.types import KeepAwayConfig
 
     seeds = list(range(args.seeds))
-    configs = {"NEAT": None, "CMA-ES": "configs/cma_es_3v2.py"}
+    configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py"}
     loaded = {k: cfg_lib.load(v, ["gif=false"]) for k, v in configs.items()}
     exp = cfg_lib.validate(loaded["NEAT"])
     sim, params = exp.sim, exp.sim_params
@@ -433,20 +517,41 @@ def bench_learning(args) -> None:
         test[name] = float(ev.evaluate(make(sim), None, starts, params, sim, key=keys.eval).fitness.mean())
     print("hand-coded policies on the test states: " + ", ".join(f"{k} {v:.4f}" for k, v in test.items()))
     results = {name: _train_and_test(path, seeds, starts, keys, name) for name, path in configs.items()}
-    for name, (_, curves, _) in results.items():
+    for name, (_, curves, _, _) in results.items():
         print(f"{name} validated champion per generation, mean over seeds: "
               + " ".join(f"{c:.3f}" for c in np.array(curves).mean(axis=0)))
-    for name, (vals, _, secs) in results.items():
+    for name, (vals, _, secs, _) in results.items():
         v = np.array(vals)
         print(f"{name}: mean {v.mean():.4f} sd {v.std(ddof=1) if v.size > 1 else 0.0:.4f} "
               f"({v.mean() / test['heuristic']:.1f}x the heuristic); per seed {' '.join(f'{x:.3f}' for x in v)}; "
               f"{np.sum(secs):.0f} s in all (the first run includes compilation)")
-    neat, cma = np.mean(results["NEAT"][0]), np.mean(results["CMA-ES"][0])
+    print("zero-shot: the 3v2 champions unchanged on each target task's test states (the test stream of "
+          f"seed {LEARNING_TEST_SEED}, {args.test_trials} states):")
+    for task in ("4v3", "5v3", "6v4"):
+        target = KeepAwayConfig.from_task(task, field_size=sim.field_size, agent_speed=sim.agent_speed,
+                                          ball_speed=sim.ball_speed, n_chasers=sim.n_chasers)
+        t_starts = env.reset_batch(keys.starts, args.test_trials, params, target)
+        base = {n: float(ev.evaluate(make(target), None, t_starts, params, target, key=keys.eval).fitness.mean())
+                for n, make in BASELINES.items()}
+        parts = []
+        for name, (_, _, _, champions) in results.items():
+            vals = []
+            for trainer, champion in champions:
+                enc = trainer.encoding
+                stats = ev.evaluate(enc.policy_for(target), enc.policy_params(stack([champion])), t_starts, params,
+                                    target, key=keys.eval)
+                vals.append(float(stats.fitness.mean()))
+            v = np.array(vals)
+            parts.append(f"{name} {v.mean():.4f} sd {v.std(ddof=1) if v.size > 1 else 0.0:.4f} "
+                         f"({v.mean() / base['heuristic']:.1f}x)")
+        print(f"  {task}: " + ", ".join(parts) + "; hand-coded " + ", ".join(f"{k} {v:.4f}" for k, v in base.items()))
+    neat, hyper, cma = (np.mean(results[k][0]) for k in ("NEAT", "HyperNEAT", "CMA-ES"))
+    print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, {hyper / neat:.2f}x NEAT)")
     print(f"learning: {neat:.4f} fitness (ratio {neat / cma:.2f} vs cma_es)")
 
 
 BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
-           "generation": bench_generation, "learning": bench_learning}
+           "generation": bench_generation, "learning": bench_learning, "hyperneat": bench_hyperneat}
 
 
 def main(argv=None) -> None:
@@ -456,7 +561,8 @@ def main(argv=None) -> None:
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--generations", type=int, default=20, help="neat_generation, generation: generations to run")
+    p.add_argument("--generations", type=int, default=20,
+                   help="neat_generation, generation, hyperneat: generations to run")
     p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
     p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
@@ -466,7 +572,7 @@ def main(argv=None) -> None:
     p.add_argument("--seeds", type=int, default=10, help="learning: seeds 0..N-1 of each learner")
     p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
     p.add_argument("--skip", type=int, default=5,
-                   help="neat_generation, generation: first generations left out (they compile)")
+                   help="neat_generation, generation, hyperneat: first generations left out (they compile)")
     args = p.parse_args(argv)
     runtime.setup()
     BENCHES[args.name](args)

@@ -23,10 +23,10 @@ coordinates: 0.1 per cell, at most 1.9 sqrt 2):
   query with the source coordinates replaced by the target's, the same point, on another output.)
 
 **One batched query per generation.** :func:`build` evaluates every CPPN of a population over all
-``N^2`` link coordinates: per genome, the inputs' contribution to every node is one ``[R, n_in] x
-[n_in, N^2]`` product, then the genome's own hidden nodes in topological order (as many as it has, not
-the capacity), each one product with the hidden values before it and its own activation function
-(selected per genome, so only that function is computed), then the outputs. Genomes go one after another
+``N^2`` link coordinates: per genome, the outputs' part from the inputs (a ``[3, n_in] x [n_in, N^2]``
+product), then the genome's own hidden nodes in topological order (as many as it has, not the
+capacity), each from the inputs and the hidden values before it, through its own activation function
+(selected per genome, so only that function is computed), added into the outputs. Genomes go one after another
 (``lax.map``): each is a wide, fully vectorised computation over 160,000 links, and the activation of a
 hidden node is a real branch rather than every function of the set computed and masked. The result
 is the generation's table ``{"w": [P, N, N], "b": [P, N]}`` (``w[g, o, i]``: genome ``g``'s weight from
@@ -124,15 +124,20 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
     computing only its first ``n_hidden`` hidden rows (the genome's hidden nodes, a prefix of its slots)."""
     h, o, n_in = config.n_hidden, config.n_outputs, config.n_inputs
     opts = config.activation_options
-    z = jnp.dot(net.w_in[:, :n_in], x, precision=jax.lax.Precision.HIGHEST) + net.w_in[:, n_in:]  # [R, L]
-    out = z[h:]
-    if h:
-        def body(i, hid):
-            zi = z[i] + jnp.dot(net.w_hid[i], hid, precision=jax.lax.Precision.HIGHEST)
-            return hid.at[i].set(_switch(net.act[i], zi, opts))
+    hp = jax.lax.Precision.HIGHEST
 
-        hid = jax.lax.fori_loop(0, n_hidden, body, jnp.zeros((h, x.shape[1]), jnp.float32))
-        out = out + jnp.dot(net.w_hid[h:], hid, precision=jax.lax.Precision.HIGHEST)
+    def from_inputs(rows):  # the inputs' and the bias's part of rows [r, n_in + 1] -> [r, L]
+        return jnp.dot(rows[:, :n_in], x, precision=hp) + rows[:, n_in:]
+
+    out = from_inputs(net.w_in[h:])
+    if h:
+        def body(i, carry):  # hidden node i: from the inputs and the hidden nodes before it; into the outputs
+            hid, out = carry
+            row = jax.lax.dynamic_slice_in_dim(net.w_in, i, 1)
+            hi = _switch(net.act[i], from_inputs(row)[0] + jnp.dot(net.w_hid[i], hid, precision=hp), opts)
+            return hid.at[i].set(hi), out + net.w_hid[h:, i][:, None] * hi[None]
+
+        _, out = jax.lax.fori_loop(0, n_hidden, body, (jnp.zeros((h, x.shape[1]), jnp.float32), out))
     return jnp.stack([_switch(net.act[h + k], out[k], opts) for k in range(o)])
 
 
