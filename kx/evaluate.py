@@ -37,6 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
 
+    runtime.setup()  # first: validating the run's config may touch JAX, whose devices are fixed then
     run_dir = pathlib.Path(args.run_dir)
     try:
         if not (run_dir / "config.json").is_file():
@@ -54,7 +55,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
 
-    runtime.setup()
     import numpy as np
 
     from kx.evolve import streams

@@ -54,6 +54,9 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args, overrides = parse(argv)
+    # first: a config's validation may touch JAX (CMA-ES and HyperNEAT build arrays), and JAX's devices
+    # are fixed when it first does
+    runtime.setup()
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
 
@@ -83,7 +86,6 @@ def main(argv: list[str] | None = None) -> int:
     except (cfg_lib.ConfigError, run_lib.RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
-    runtime.setup()
     try:
         run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
                       log=lambda s: print(s, flush=True))

@@ -251,6 +251,8 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
                               f" (the fields are: {', '.join(sorted(known))})")
         parent, _, leaf = field.rpartition(".")
         node = _field(cfg, parent)[0] if parent else cfg
+        if isinstance(node[leaf], tuple) and isinstance(value, list):  # JSON has no tuples
+            value = tuple(value)
         try:
             node[leaf] = value
         except TypeError as e:
@@ -284,7 +286,9 @@ def identity_mismatch(saved: dict, cfg: ml_collections.ConfigDict) -> str | None
     """The first field (other than :data:`RESUMABLE`) where a checkpoint's config differs from
     ``cfg``, described; ``None`` if they agree."""
     now = cfg.to_dict()
-    a, b = flatten(saved), flatten(now)
+    # JSON writes tuples as lists
+    tup = lambda d: {k: tuple(v) if isinstance(v, list) else v for k, v in flatten(d).items()}  # noqa: E731
+    a, b = tup(saved), tup(now)
     for field in sorted(set(a) | set(b)):
         if field in RESUMABLE:
             continue

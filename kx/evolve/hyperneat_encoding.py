@@ -11,9 +11,11 @@ number of players, so a CPPN evolved in 3v2 plays 4v3, 5v3 and 6v4 as it is (``k
 Config section ``hyperneat``: every :class:`~kx.neat.types.NEATParams` field (the CPPN rates), the
 CPPN's ``activations`` (the set new hidden nodes draw from) and ``output_activation``, its capacity
 (``max_hidden``, ``extra_conns``, ``extra_genes``, ``species_capacity``, ``max_add_links``, as in the
-``neat`` section), and the substrate and policy: ``resolution`` (must equal ``sim.field_size``),
-``distance_input``, ``image`` (``"paper"`` or ``"authors"``), ``decision`` (``"cells"`` or
-``"literal"``) and ``substrate_activation`` (the substrate's output nodes). The run's ``layout`` is
+``neat`` section, except that a ``max_add_links`` above ``population_size`` acts as
+``population_size``), and the substrate and policy: ``resolution`` (must equal ``sim.field_size``),
+``distance_input``, ``image`` (``"authors"`` or ``"paper"``), ``decision`` (``"cells"`` or
+``"literal"``) and ``substrate_activation`` (the substrate's output nodes); docs/hyperneat.md gives the
+defaults and the measurements behind them. The run's ``layout`` is
 ``"bev"``.
 """
 
@@ -76,9 +78,6 @@ class HyperNEATEncoding(NEATEncoding):
               f"at most population_size ({cfg.population_size})", n["species_capacity"])
         _need(n["extra_genes"] <= n["extra_conns"], "hyperneat.extra_genes",
               f"at most hyperneat.extra_conns ({n['extra_conns']})", n["extra_genes"])
-        _need(n["max_add_links"] <= cfg.population_size, "hyperneat.max_add_links",
-              f"an integer in [0, population_size = {cfg.population_size}] (0: max(8, population_size // 8))",
-              n["max_add_links"])
         acts = n["activations"]
         _need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
                                                                        for a in acts)
@@ -105,7 +104,8 @@ class HyperNEATEncoding(NEATEncoding):
                 max_genes=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_genes"],
                 species_capacity=n["species_capacity"], activation_options=opts,
                 hidden_activation=acts[0], output_activation=n["output_activation"],
-                max_add_links=n["max_add_links"])
+                # the preset's 40 suits 150 CPPNs; a smaller population carries out at most all of its add-links
+                max_add_links=min(n["max_add_links"], cfg.population_size))
             self.neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
             self.neat_params.validate()
             if self.neat_params.target_species > self.neat_config.species_capacity:
