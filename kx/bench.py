@@ -455,15 +455,18 @@ def bench_hyperneat(args) -> None:
 LEARNING_TEST_SEED = 2026  # the test stream of this seed: the same 1000 test states for every run
 
 
-def _train_and_test(config: str | None, seeds, starts, keys, log_name: str):
+def _train_and_test(config: str | None, seeds, starts, keys, log_name: str, targets=()):
     """Each seed's run of ``config`` through the run loop (no run directory), its validated champion
-    played on ``starts``; returns the test figures, the validated-champion curves, the seconds, and
-    each run's trainer and champion."""
+    played on ``starts`` and, unchanged, on each target task's ``(sim, starts)`` of ``targets``; returns
+    the test figures, the validated-champion curves, the seconds and the target figures ``[seed][task]``.
+    Each run's trainer is dropped before the next (thirty runs' compiled programs exhausted the memory
+    maps of the process)."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve.encoding import stack
+    from kx.sim import evaluate as ev
 
-    test, curves, secs, champions = [], [], [], []
+    test, curves, secs, transfer = [], [], [], []
     for seed in seeds:
         t0 = time.perf_counter()
         trainer = run_lib.Trainer(cfg_lib.load(config, ["gif=false", f"seed={seed}"]))
@@ -472,11 +475,15 @@ def _train_and_test(config: str | None, seeds, starts, keys, log_name: str):
         test.append(f)
         curves.append([r["best_validation"] for r in rows])
         secs.append(time.perf_counter() - t0)
-        champions.append((trainer, state.champion))
+        enc, params = trainer.encoding, trainer.exp.sim_params
+        transfer.append([float(ev.evaluate(enc.policy_for(sim), enc.policy_params(stack([state.champion])), t_starts,
+                                           params, sim, key=keys.eval).fitness.mean()) for sim, t_starts in targets])
         print(f"{log_name} seed {seed}: test {f:.4f} (validated champion of generation "
               f"{int(state.champion_generation) + 1}, validation {float(state.champion_validation):.4f}; "
-              f"{secs[-1]:.0f} s)", flush=True)
-    return test, curves, secs, champions
+              f"{secs[-1]:.0f} s)" + "".join(f"; {sim.name} {v:.4f}" for (sim, _), v in zip(targets, transfer[-1])),
+              flush=True)
+        del trainer, state, enc
+    return test, curves, secs, transfer
 
 
 def bench_learning(args) -> None:
@@ -495,7 +502,6 @@ def bench_learning(args) -> None:
 
     from kx.evolve import config as cfg_lib
     from kx.evolve import streams
-    from kx.evolve.encoding import stack
     from kx.sim import env
     from kx.sim import evaluate as ev
     from kx.sim.policies import BASELINES
@@ -516,7 +522,15 @@ def bench_learning(args) -> None:
     for name, make in BASELINES.items():
         test[name] = float(ev.evaluate(make(sim), None, starts, params, sim, key=keys.eval).fitness.mean())
     print("hand-coded policies on the test states: " + ", ".join(f"{k} {v:.4f}" for k, v in test.items()))
-    results = {name: _train_and_test(path, seeds, starts, keys, name) for name, path in configs.items()}
+    targets, target_base = [], {}
+    for task in ("4v3", "5v3", "6v4"):
+        target = KeepAwayConfig.from_task(task, field_size=sim.field_size, agent_speed=sim.agent_speed,
+                                          ball_speed=sim.ball_speed, n_chasers=sim.n_chasers)
+        t_starts = env.reset_batch(keys.starts, args.test_trials, params, target)
+        targets.append((target, t_starts))
+        target_base[task] = {n: float(ev.evaluate(make(target), None, t_starts, params, target,
+                                                  key=keys.eval).fitness.mean()) for n, make in BASELINES.items()}
+    results = {name: _train_and_test(path, seeds, starts, keys, name, targets) for name, path in configs.items()}
     for name, (_, curves, _, _) in results.items():
         print(f"{name} validated champion per generation, mean over seeds: "
               + " ".join(f"{c:.3f}" for c in np.array(curves).mean(axis=0)))
@@ -527,24 +541,15 @@ def bench_learning(args) -> None:
               f"{np.sum(secs):.0f} s in all (the first run includes compilation)")
     print("zero-shot: the 3v2 champions unchanged on each target task's test states (the test stream of "
           f"seed {LEARNING_TEST_SEED}, {args.test_trials} states):")
-    for task in ("4v3", "5v3", "6v4"):
-        target = KeepAwayConfig.from_task(task, field_size=sim.field_size, agent_speed=sim.agent_speed,
-                                          ball_speed=sim.ball_speed, n_chasers=sim.n_chasers)
-        t_starts = env.reset_batch(keys.starts, args.test_trials, params, target)
-        base = {n: float(ev.evaluate(make(target), None, t_starts, params, target, key=keys.eval).fitness.mean())
-                for n, make in BASELINES.items()}
+    for i, (target, _) in enumerate(targets):
+        base = target_base[target.name]
         parts = []
-        for name, (_, _, _, champions) in results.items():
-            vals = []
-            for trainer, champion in champions:
-                enc = trainer.encoding
-                stats = ev.evaluate(enc.policy_for(target), enc.policy_params(stack([champion])), t_starts, params,
-                                    target, key=keys.eval)
-                vals.append(float(stats.fitness.mean()))
-            v = np.array(vals)
+        for name, (_, _, _, transfer) in results.items():
+            v = np.array([t[i] for t in transfer])
             parts.append(f"{name} {v.mean():.4f} sd {v.std(ddof=1) if v.size > 1 else 0.0:.4f} "
                          f"({v.mean() / base['heuristic']:.1f}x)")
-        print(f"  {task}: " + ", ".join(parts) + "; hand-coded " + ", ".join(f"{k} {v:.4f}" for k, v in base.items()))
+        print(f"  {target.name}: " + ", ".join(parts) + "; hand-coded " + ", ".join(f"{k} {v:.4f}"
+                                                                                  for k, v in base.items()))
     neat, hyper, cma = (np.mean(results[k][0]) for k in ("NEAT", "HyperNEAT", "CMA-ES"))
     print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, {hyper / neat:.2f}x NEAT)")
     print(f"learning: {neat:.4f} fitness (ratio {neat / cma:.2f} vs cma_es)")
