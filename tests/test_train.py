@@ -230,6 +230,7 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow  # it trains in the test process, compiling every program there
 def test_a_relative_workdir_works(capsys, trained, tmp_path, monkeypatch):
     # orbax needs absolute paths; the run resolves a relative --workdir itself (the same code for any method)
     src, _, method = trained
