@@ -31,7 +31,7 @@ import numpy as np
 
 from kx.evolve.config import ConfigError
 from kx.evolve.encoding import register
-from kx.evolve.neat_encoding import NEATEncoding, _int, _need, neat_params_fields
+from kx.evolve.neat_encoding import NEATEncoding, _int, _need, check_capacity, neat_params_fields
 from kx.neat.activations import ACTIVATIONS
 from kx.neat.algorithm import NEAT
 from kx.neat.types import NEATError, NEATParams
@@ -71,13 +71,7 @@ class HyperNEATEncoding(NEATEncoding):
         self.layout = cfg.layout
         self.population_size = cfg.population_size
         n = dict(cfg.hyperneat)
-        for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes", "max_add_links"):
-            low = 1 if f == "species_capacity" else 0
-            _need(_int(n[f]) and n[f] >= low, f"hyperneat.{f}", f"an integer >= {low}", n[f])
-        _need(n["species_capacity"] <= cfg.population_size, "hyperneat.species_capacity",
-              f"at most population_size ({cfg.population_size})", n["species_capacity"])
-        _need(n["extra_genes"] <= n["extra_conns"], "hyperneat.extra_genes",
-              f"at most hyperneat.extra_conns ({n['extra_conns']})", n["extra_genes"])
+        check_capacity(n, "hyperneat", cfg.population_size)
         acts = n["activations"]
         _need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
                                                                        for a in acts)

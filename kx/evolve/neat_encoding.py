@@ -49,6 +49,17 @@ def _int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
+def check_capacity(n: dict, section: str, population_size: int) -> None:
+    """The genome-capacity fields of a NEAT learner's config section ``n`` (``neat``, ``hyperneat``)."""
+    for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes", "max_add_links"):
+        low = 1 if f == "species_capacity" else 0
+        _need(_int(n[f]) and n[f] >= low, f"{section}.{f}", f"an integer >= {low}", n[f])
+    _need(n["species_capacity"] <= population_size, f"{section}.species_capacity",
+          f"at most population_size ({population_size})", n["species_capacity"])
+    _need(n["extra_genes"] <= n["extra_conns"], f"{section}.extra_genes",
+          f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
+
+
 @register
 class NEATEncoding(Encoding):
     name = "neat"
@@ -73,13 +84,7 @@ class NEATEncoding(Encoding):
     def __init__(self, cfg, sim, sim_params):
         super().__init__(cfg, sim, sim_params)
         n = dict(cfg.neat)
-        for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes", "max_add_links"):
-            low = 1 if f == "species_capacity" else 0
-            _need(_int(n[f]) and n[f] >= low, f"neat.{f}", f"an integer >= {low}", n[f])
-        _need(n["species_capacity"] <= cfg.population_size, "neat.species_capacity",
-              f"at most population_size ({cfg.population_size})", n["species_capacity"])
-        _need(n["extra_genes"] <= n["extra_conns"], "neat.extra_genes",
-              f"at most neat.extra_conns ({n['extra_conns']})", n["extra_genes"])
+        check_capacity(n, "neat", cfg.population_size)
         _need(n["max_add_links"] <= cfg.population_size, "neat.max_add_links",
               f"an integer in [0, population_size = {cfg.population_size}] (0: max(8, population_size // 8))",
               n["max_add_links"])
