@@ -21,7 +21,6 @@ defaults and the measurements behind them. The run's ``layout`` is
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 
 import jax
@@ -31,10 +30,9 @@ import numpy as np
 
 from kx.evolve.config import ConfigError
 from kx.evolve.encoding import register
-from kx.evolve.neat_encoding import NEATEncoding, _int, _need, check_capacity, neat_params_fields
+from kx.evolve.neat_encoding import NEATEncoding, _int, _need, check_capacity, learner, neat_params_fields
 from kx.neat.activations import ACTIVATIONS
-from kx.neat.algorithm import NEAT
-from kx.neat.types import NEATError, NEATParams
+from kx.neat.types import NEATError
 
 IMAGES = ("paper", "authors")
 DECISIONS = ("cells", "literal")
@@ -100,15 +98,10 @@ class HyperNEATEncoding(NEATEncoding):
                 hidden_activation=acts[0], output_activation=n["output_activation"],
                 # the preset's 40 suits 150 CPPNs; a smaller population carries out at most all of its add-links
                 max_add_links=min(n["max_add_links"], cfg.population_size))
-            self.neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
-            self.neat_params.validate()
-            if self.neat_params.target_species > self.neat_config.species_capacity:
-                raise NEATError(f"NEATParams.target_species = {self.neat_params.target_species}: allowed at most "
-                                f"hyperneat.species_capacity = {self.neat_config.species_capacity}")
         except NEATError as e:
             msg = str(e).replace("NEATParams.", "hyperneat.").replace("NEATConfig.", "hyperneat.")
             raise ConfigError(msg) from None
-        self.neat = NEAT(self.neat_config, self.neat_params)
+        self.neat_params, self.neat = learner(n, self.neat_config, "hyperneat")
 
     def policy_for(self, sim):
         from kx.hyperneat.bev import bev_policy

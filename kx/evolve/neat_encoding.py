@@ -60,6 +60,17 @@ def check_capacity(n: dict, section: str, population_size: int) -> None:
           f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
 
 
+def learner(n: dict, config, section: str) -> tuple[NEATParams, NEAT]:
+    """The rates of config section ``n`` and the NEAT learner of ``config`` with them; a value out of
+    range (NEAT's own checks, :func:`kx.neat.algorithm.validate`) as a :class:`ConfigError` naming
+    ``section``'s field."""
+    try:
+        params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
+        return params, NEAT(config, params)
+    except NEATError as e:
+        raise ConfigError(str(e).replace("NEATParams.", f"{section}.").replace("NEATConfig.", f"{section}.")) from None
+
+
 @register
 class NEATEncoding(Encoding):
     name = "neat"
@@ -99,14 +110,9 @@ class NEATEncoding(Encoding):
                 output_activation=n["output_activation"], hidden_activation=n["hidden_activation"],
                 activation_options=tuple(dict.fromkeys((n["hidden_activation"], n["output_activation"]))),
                 max_add_links=n["max_add_links"])
-            self.neat_params = NEATParams(**{f.name: n[f.name] for f in dataclasses.fields(NEATParams)})
-            self.neat_params.validate()
-            if self.neat_params.target_species > self.neat_config.species_capacity:
-                raise NEATError(f"NEATParams.target_species = {self.neat_params.target_species}: allowed at most "
-                                f"neat.species_capacity = {self.neat_config.species_capacity}")
         except NEATError as e:
             raise ConfigError(str(e).replace("NEATParams.", "neat.").replace("NEATConfig.", "neat.")) from None
-        self.neat = NEAT(self.neat_config, self.neat_params)
+        self.neat_params, self.neat = learner(n, self.neat_config, "neat")
 
     def init(self, key):
         return self.neat.init(key)
