@@ -21,6 +21,7 @@ from typing import Any
 import ml_collections
 
 from kx.evolve import encoding as encodings
+from kx.evolve import objective as objectives
 from kx.evolve.objective import OBJECTIVES
 from kx.sim import env
 from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
@@ -51,6 +52,14 @@ def base_config(method: str = "neat", **section_options) -> ml_collections.Confi
     c.task = "3v2"  # "<keepers>v<takers>": the paper's 3v2, 4v3, 5v3, 6v4 or any other in range
     c.method = method  # the encoding: one of kx.evolve.encoding.names()
     c.objective = "fitness"  # what the learner selects on (kx.evolve.objective); reports are always fitness
+    # the novelty search hybrid (objective = "hybrid", SPEC section 4; kx.novelty): k nearest neighbours,
+    # rho the weight of fitness in the score, the archive's size and its admission threshold
+    c.novelty = ml_collections.ConfigDict(objectives.novelty_defaults())
+    # policy transfer (SPEC section 5; kx.evolve.transfer): the run directory of a source run whose
+    # checkpointed population seeds this one ("": no transfer, a fresh population), its checkpoint
+    # (-1: the latest) and how its population seeds this run's ("population": all of it;
+    # "champion": its validated champion and mutated copies; "half": its fittest half and mutated copies)
+    c.transfer = ml_collections.ConfigDict({"source": "", "step": -1, "seeding": "population"})
     c.layout = "fixed"  # "fixed": 13 inputs, 3 outputs (the paper's NEAT); "full": 4K+2T-3 inputs, K outputs
     c.population_size = 150
     c.trials = 30  # start states per generation, shared by every individual
@@ -161,6 +170,7 @@ class Experiment:
     sim_params: KeepAwayParams
     encoding: encodings.Encoding
     layout: str
+    objective: objectives.Objective
 
     @property
     def neat(self):
@@ -187,6 +197,10 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     cls = encodings.get(method)
     _need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
           cfg.objective)
+    try:
+        objective = objectives.make(cfg)
+    except objectives.ObjectiveError as e:
+        raise ConfigError(str(e)) from None
     _need(isinstance(cfg.layout, str) and cfg.layout in cls.layouts, "layout",
           f"one of {cls.layouts} for method {method!r}", cfg.layout)
     _need(_int(cfg.population_size) and 2 <= cfg.population_size <= 100_000, "population_size",
@@ -222,7 +236,8 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
         env.check(sim, sim_params)
     except KeepAwayError as e:
         raise ConfigError(f"sim.{e}") from None
-    return Experiment(sim=sim, sim_params=sim_params, encoding=cls(cfg, sim, sim_params), layout=cfg.layout)
+    return Experiment(sim=sim, sim_params=sim_params, encoding=cls(cfg, sim, sim_params), layout=cfg.layout,
+                      objective=objective)
 
 
 def flatten(d: dict, prefix: str = "") -> dict:

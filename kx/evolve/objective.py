@@ -2,10 +2,13 @@
 
 An objective turns a generation's raw task fitness ``[P]`` and behaviour ``[3, P]`` into the selection
 score ``[P]`` handed to the learner's ``tell``, with a state of its own carried in the run state and
-checkpointed with it (the novelty archive will live there). The run loop reports raw fitness only:
-the champion, the best checkpoint, metrics.csv, the progress line and the plots never see the score.
+checkpointed with it (the novelty archive lives there). The run loop reports raw fitness only: the
+champion, the best checkpoint, metrics.csv's fitness columns, the progress line and the plots never see
+the score.
 
-``fitness`` is the only objective for now: the score is the fitness and the state is empty.
+* ``fitness``: the score is the fitness and the state is empty.
+* ``hybrid``: the novelty search hybrid of SPEC section 4 (:mod:`kx.novelty`), configured by the
+  ``novelty`` config section.
 """
 
 from __future__ import annotations
@@ -15,13 +18,24 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
-OBJECTIVES = ("fitness",)
+OBJECTIVES = ("fitness", "hybrid")
 
 
-class Fitness:
-    """Selection on raw task fitness."""
+class ObjectiveError(ValueError):
+    """A config field of an objective out of range (the message names the field)."""
+
+
+def novelty_defaults() -> dict:
+    """The ``novelty`` config section at its defaults (SPEC section 4)."""
+    return {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03}
+
+
+class Objective:
+    """Selection on raw task fitness (the base of every objective)."""
 
     name = "fitness"
+    #: metrics.csv columns the objective adds (keys of ``score``'s metrics)
+    metric_fields: tuple[str, ...] = ()
 
     def init(self, population_size: int) -> Any:
         return {}
@@ -32,5 +46,11 @@ class Fitness:
         return jnp.asarray(fitness, jnp.float32), state, {}
 
 
-def make(name: str):
-    return {"fitness": Fitness}[name]()
+Fitness = Objective
+
+
+def make(cfg) -> Objective:
+    """The objective of a run config (``cfg.objective``, its ``novelty`` section checked)."""
+    if cfg.objective == "fitness":
+        return Fitness()
+    raise ObjectiveError(f"objective: allowed one of {OBJECTIVES}, got {cfg.objective!r}")

@@ -20,8 +20,10 @@ LOOP_FIELDS = (
 TIMING_FIELDS = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
 
 
-def csv_fields(encoding) -> tuple[str, ...]:
-    return LOOP_FIELDS + tuple(f for f in encoding.metric_fields if f not in LOOP_FIELDS)
+def csv_fields(encoding, objective=None) -> tuple[str, ...]:
+    """metrics.csv's columns: the run loop's, the encoding's ``metric_fields``, then the objective's."""
+    extra = tuple(encoding.metric_fields) + tuple(getattr(objective, "metric_fields", ()))
+    return LOOP_FIELDS + tuple(dict.fromkeys(f for f in extra if f not in LOOP_FIELDS))
 
 
 def write_json(path: pathlib.Path, obj) -> None:

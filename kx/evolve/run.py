@@ -54,7 +54,6 @@ import numpy as np
 
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import objective as objectives
 from kx.evolve import report, streams
 from kx.evolve.checkpoint import RunError, RunState
 from kx.evolve.encoding import stack
@@ -79,8 +78,8 @@ class Trainer:
         self.cfg = cfg
         self.exp = cfg_lib.validate(cfg)
         self.encoding = self.exp.encoding
-        self.objective = objectives.make(cfg.objective)
-        self.fields = report.csv_fields(self.encoding)
+        self.objective = self.exp.objective
+        self.fields = report.csv_fields(self.encoding, self.objective)
         keys = streams.validation(cfg.seed)
         self.validation_eval_key = keys.eval
         self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
