@@ -8,15 +8,21 @@ the score.
 
 * ``fitness``: the score is the fitness and the state is empty.
 * ``hybrid``: the novelty search hybrid of SPEC section 4 (:mod:`kx.novelty`), configured by the
-  ``novelty`` config section.
+  ``novelty`` config section: ``rho`` times the population-normalised fitness plus ``1 - rho`` times
+  the normalised novelty (the mean distance to the ``k`` nearest behaviours among the rest of the
+  population and the archive); the state is the archive (``archive_size`` behaviour vectors, those
+  with novelty above ``threshold`` admitted, the oldest replaced once full).
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+
+from kx import novelty as nv
 
 OBJECTIVES = ("fitness", "hybrid")
 
@@ -48,9 +54,63 @@ class Objective:
 
 Fitness = Objective
 
+#: the behaviour vector the run loop hands ``score``: passes, dispersion, ball distance from centre
+BEHAVIOUR_DIM = 3
+
+
+class Hybrid(Objective):
+    """Selection on ``rho`` x normalised fitness + ``(1 - rho)`` x normalised novelty (SPEC section 4);
+    the state is the behaviour archive (:class:`kx.novelty.Archive`, ``archive_size`` x 3)."""
+
+    name = "hybrid"
+    metric_fields = ("mean_novelty", "champion_novelty", "archive_size", "archive_added", "score_std")
+
+    def __init__(self, k: int, rho: float, archive_size: int, threshold: float):
+        self.k, self.rho, self.archive_size, self.threshold = k, rho, archive_size, threshold
+        self.params = nv.NoveltyParams(rho=float(rho), threshold=float(threshold), k=int(k))
+        self._step = None  # jitted once, on first use
+
+    def init(self, population_size: int) -> nv.Archive:
+        del population_size  # the archive's shape is the config's alone
+        return nv.init_archive(self.archive_size, BEHAVIOUR_DIM)
+
+    def score(self, fitness: jax.Array, behaviour: jax.Array,
+              state: nv.Archive) -> tuple[jax.Array, nv.Archive, dict]:
+        """``behaviour`` is the run loop's ``[3, P]``."""
+        if self._step is None:
+            self._step = jax.jit(nv.step)
+        return self._step(jnp.asarray(fitness, jnp.float32), jnp.asarray(behaviour, jnp.float32).T, state,
+                          self.params)
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _integer(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _check_novelty(section) -> dict:
+    fields = {f: section[f] if f in section else None for f in novelty_defaults()}
+    checks = {
+        "k": (lambda v: _integer(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
+        "rho": (lambda v: _number(v) and 0 <= v <= 1, "a number in [0, 1]"),
+        "archive_size": (lambda v: _integer(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
+        "threshold": (lambda v: _number(v) and v >= 0, "a finite number >= 0"),
+    }
+    for field, (ok, allowed) in checks.items():
+        if not ok(fields[field]):
+            raise ObjectiveError(f"novelty.{field}: allowed {allowed}, got {fields[field]!r}")
+    return fields
+
 
 def make(cfg) -> Objective:
-    """The objective of a run config (``cfg.objective``, its ``novelty`` section checked)."""
+    """The objective of a run config (``cfg.objective``); the ``novelty`` section is checked whatever
+    the objective (it is part of every config and of its identity)."""
+    novelty = _check_novelty(cfg.novelty)
     if cfg.objective == "fitness":
         return Fitness()
+    if cfg.objective == "hybrid":
+        return Hybrid(**novelty)
     raise ObjectiveError(f"objective: allowed one of {OBJECTIVES}, got {cfg.objective!r}")
