@@ -271,7 +271,9 @@ def test_behaviour_statistics_hand_computed():
     st = env.episode_stats(out, PARAMS, CFG)
     beh = np.asarray(st.behaviour)
     assert beh[0] == 0.0
-    np.testing.assert_allclose(beh[1], expect / 3 / 32 / (19 * np.sqrt(2)), rtol=1e-6)
+    # the largest mean pairwise distance of 3 keepers on 20 x 20 (two on a diagonal's corners, one on a
+    # third corner): 19 (2 + sqrt 2) / 3
+    np.testing.assert_allclose(beh[1], expect / 3 / 32 / (19 * (2 + np.sqrt(2)) / 3), rtol=1e-6)
     # the fixed-point distance rounds a hair above the bound; statistics are clipped to [0, 1]
     np.testing.assert_allclose(beh[2], min(1.0, round(32 * 9.5 * np.sqrt(2)) / 32 / (9.5 * np.sqrt(2))), rtol=1e-6)
 

@@ -479,19 +479,58 @@ def _ball_centre_q(bx, by, config: KeepAwayConfig):
 # -------------------------------------------------------------------------------------- statistics
 
 
-def behaviour_bounds(config: KeepAwayConfig, params: KeepAwayParams):
-    """Analytic normalisers of the behaviour statistics (task-dependent only)."""
-    diag = (config.field_size - 1) * math.sqrt(2.0)
-    return params.max_iterations, diag, diag / 2.0
+def max_pair_distance_sum(n_keepers: int, field_size: int) -> float:
+    """The largest sum of pairwise Euclidean distances ``n_keepers`` agents can have on the field.
+
+    The sum of the distances is a convex function of the agents' positions, so over the square
+    ``[0, W-1]^2`` (a product of convex polygons) its maximum lies at a vertex: every agent on a corner
+    cell (cells may be shared). With ``p`` agents on one diagonal's two corners and ``q = K - p`` on the
+    other's, split as evenly as possible, the sum is ``(W-1) (p q + sqrt2 (floor(p^2/4) + floor(q^2/4)))``
+    (sides between the diagonals, diagonals within them); the maximum over ``p`` is exact for the grid
+    too, since corners are cells. Per pair ((W-1) units): 1.138 for K = 3 and 4, 1.024 for 5, 1.005
+    for 6, 0.975 for 7 and 8, against sqrt2 = 1.414 for the diagonal.
+    """
+    k, side = n_keepers, field_size - 1
+    return side * max(p * (k - p) + math.sqrt(2.0) * (p * p // 4 + (k - p) ** 2 // 4) for p in range(k + 1))
+
+
+def behaviour_bounds(config: KeepAwayConfig, params: KeepAwayParams | None = None):
+    """The fixed normalisers of the three behaviour statistics, ``(passes, dispersion, ball_centre)``:
+    static Python floats that depend only on the task's config (``params`` is accepted and unused).
+
+    * **passes**, per iteration played: 1.0. At most one pass completes in an iteration (one ball;
+      a catch ends its flight, a hand-off replaces the kick), and one can complete in every
+      iteration: a hand-off to a teammate on the holder's cell, or a kick to one within
+      ``ball_speed`` cells, completes in the iteration of its decision, and the receiver can kick in
+      the next. The same rule bounds the count by ``max_iterations``, the normaliser of the first kx
+      versions; episodes last ~1-3% of it (the calibrated defaults), so that normaliser put every
+      team in [0, 0.005] (3v2: random 0.0006, heuristic 0.004) and the dimension never moved a
+      distance. As a rate over the iterations played, like the other two means, it is bounded by the
+      same rule and spans what play does (docs/simulator.md has the measured spread).
+    * **dispersion**, the mean pairwise keeper distance: :func:`max_pair_distance_sum` / ``C(K, 2)``,
+      the exact largest mean K keepers can have (all on corners, never exceeded by an iteration, so
+      never by the episode's mean): 0.805 of the diagonal for K = 3, 4; 0.724 for 5; 0.710 for 6;
+      0.690 for 7, 8.
+    * **ball_centre**, the ball's cell's distance from the field centre: ``(W-1) sqrt2 / 2``, half the
+      diagonal, attained on a corner cell (the statistic clips the ball's cell into the field).
+
+    The fixed-point accumulators round each distance to 1/32 cell, which can put a corner a hair
+    above its bound: the statistics are clipped to [0, 1].
+    """
+    del params
+    pairs = config.n_keepers * (config.n_keepers - 1) // 2
+    dispersion = max_pair_distance_sum(config.n_keepers, config.field_size) / pairs
+    return 1.0, dispersion, (config.field_size - 1) * math.sqrt(2.0) / 2.0
 
 
 def episode_stats(state: State, params: KeepAwayParams, config: KeepAwayConfig) -> EpisodeStats:
     """Fitness, termination and the normalised behaviour vector of (finished) episodes.
 
     Fitness is iterations survived / max_iterations: an iteration in which the ball was lost does not
-    count. Behaviour: completed passes / max_iterations (at most one pass completes per iteration),
-    mean pairwise keeper distance / the largest cell distance, mean ball distance from the centre /
-    its largest value; both means over the iterations executed.
+    count. Behaviour (each a mean over the iterations executed, divided by its bound in
+    :func:`behaviour_bounds` and clipped to [0, 1]): completed passes per iteration (bound 1); the mean
+    pairwise keeper distance (bound: the largest mean K keepers can have on the field, all on
+    corners); the ball's distance from the centre (bound: half the diagonal).
     """
     return stats_from_counts(state.t, state.reason, state.passes, state.dispersion_sum,
                              state.ball_centre_sum, params, config)
@@ -502,15 +541,18 @@ def stats_from_counts(t, reason, passes, dispersion_sum, ball_centre_sum, params
     """:func:`episode_stats` from an episode's integer counters (all ``[*B]``)."""
     lost = (reason == Reason.INTERCEPTED) | (reason == Reason.TACKLED) | (reason == Reason.OUT_OF_FIELD)
     survived = t - lost.astype(jnp.int32)
-    max_it = jnp.asarray(params.max_iterations, jnp.float32)
+    # XLA rewrites x / broadcast(m) as x * broadcast(1 / m), one ulp off the quotient, where m has no
+    # other use; behind the barrier it cannot, so every program (and eager code) divides exactly.
+    max_it = jax.lax.optimization_barrier(
+        jnp.broadcast_to(jnp.asarray(params.max_iterations, jnp.float32), survived.shape))
     fitness = survived.astype(jnp.float32) / max_it
     steps = jnp.maximum(t, 1).astype(jnp.float32)
     n_pairs = config.n_keepers * (config.n_keepers - 1) // 2
-    _, diag, half = behaviour_bounds(config, params)
-    disp = dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * diag)
-    centre = ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * half)
-    behaviour = jnp.stack([passes.astype(jnp.float32) / max_it, jnp.minimum(disp, 1.0),
-                           jnp.minimum(centre, 1.0)])
+    pass_bound, disp_bound, centre_bound = behaviour_bounds(config)
+    rate = passes.astype(jnp.float32) / (steps * pass_bound)
+    disp = dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * disp_bound)
+    centre = ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * centre_bound)
+    behaviour = jnp.stack([jnp.minimum(rate, 1.0), jnp.minimum(disp, 1.0), jnp.minimum(centre, 1.0)])
     return EpisodeStats(fitness=fitness, iterations=t, reason=reason, passes=passes, behaviour=behaviour)
 
 
