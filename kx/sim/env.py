@@ -503,9 +503,9 @@ def behaviour_bounds(config: KeepAwayConfig, params: KeepAwayParams | None = Non
       iteration: a hand-off to a teammate on the holder's cell, or a kick to one within
       ``ball_speed`` cells, completes in the iteration of its decision, and the receiver can kick in
       the next. The same rule bounds the count by ``max_iterations``, the normaliser of the first kx
-      versions; episodes last ~1-3% of it (the calibrated defaults), so that normaliser put every
-      team in [0, 0.005] (3v2: random 0.0006, heuristic 0.004) and the dimension never moved a
-      distance. As a rate over the iterations played, like the other two means, it is bounded by the
+      versions; under the calibrated defaults episodes last 0.2-9% of it, so that normaliser put
+      every team in [0, 0.011] (3v2: random 0.0005, heuristic 0.0046) and the dimension never moved
+      a distance. As a rate over the iterations played, like the other two means, it is bounded by the
       same rule and spans what play does (docs/simulator.md has the measured spread).
     * **dispersion**, the mean pairwise keeper distance: :func:`max_pair_distance_sum` / ``C(K, 2)``,
       the exact largest mean K keepers can have (all on corners, never exceeded by an iteration, so
