@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from kx.neat import algorithm as alg
 from kx.neat import checks as ck
 from kx.neat import network as nw
 from kx.neat import transfer as tr
@@ -221,7 +222,7 @@ def test_evolved_population_maps_and_keeps_going():
 
     # the mapped population evolves on under the target config
     neat_t = NEAT(T, PARAMS)
-    st = tr.seed_state(mapped, nn, ni, PARAMS, T)
+    st = alg.init_from(mapped, nn, ni, PARAMS.compat_threshold, PARAMS, T)
     for g in range(2):
         st, metrics = neat_t.tell(jax.random.key(50 + g), st.population,
                                   jax.random.uniform(jax.random.key(60 + g), (T.population_size,)), st)

@@ -142,6 +142,26 @@ class CMAESEncoding(Encoding):
     def policy_params(self, population):
         return population
 
+    def transfer_problems(self, source, state, seeding):
+        out = []
+        if seeding == "half":
+            out.append("seeding 'half': CMA-ES carries a distribution, not a population; allowed 'population' "
+                       "(the source's mean and step size) or 'champion' (the source's champion as the mean)")
+        if (source.dim, source.hidden) != (self.dim, self.hidden):
+            out.append(f"the source's networks have {source.dim} parameters ({source.n_in} inputs, {source.n_out} "
+                       f"outputs, cma_es.hidden {source.hidden}), this run's {self.dim} ({self.n_in} inputs, "
+                       f"{self.n_out} outputs, cma_es.hidden {self.hidden}): they do not fit")
+        return out
+
+    def transfer(self, key, source, state, seeding, order):
+        """The distribution starts at the source's mean (``champion``: at its validated champion) with the
+        source's step size; its covariance and evolution paths start afresh, as in a new run."""
+        mean = state.learner.mean if seeding == "population" else state.champion
+        if not hasattr(self, "_init_at"):
+            self._init_at = jax.jit(lambda k, m, std: _strong(
+                self.es.init(k, m, self.es_params).replace(std=std)))
+        return self._init_at(key, jnp.asarray(mean, jnp.float32), jnp.asarray(state.learner.std, jnp.float32))
+
     def check(self, state, champion):
         errs = []
         for name in ("mean", "std", "C", "p_std", "p_c"):

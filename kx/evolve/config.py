@@ -33,6 +33,8 @@ PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
 # Fields that may change when a run is resumed (how long it runs and what it writes, not what it
 # computes); every other field must equal the checkpoint's.
+# config.json's record of a transferred run's source (kx.evolve.transfer), beside the config's fields
+SOURCE_RECORD = "transfer_source"
 RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames")
 
 
@@ -197,6 +199,9 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     cls = encodings.get(method)
     _need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
           cfg.objective)
+    from kx.evolve import transfer
+
+    transfer.check_section(cfg)
     try:
         objective = objectives.make(cfg)
     except objectives.ObjectiveError as e:
@@ -285,6 +290,8 @@ def read_run_config(path: str | pathlib.Path) -> ml_collections.ConfigDict:
         d = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
+    if isinstance(d, dict):
+        d = {k: v for k, v in d.items() if k != SOURCE_RECORD}  # a transferred run's record of its source
     try:
         cfg = from_dict(d)
         missing = sorted(set(_fields(cfg)) - set(flatten(d)))

@@ -16,6 +16,7 @@ method is one class that implements it and registers itself under the config's `
         def tell(self, key, population, score, fitness, state): ...   # -> (state, {field: scalar})
         def policy_for(self, sim): ...     # the kx.sim Policy its genotypes play in task ``sim``
         def policy_params(self, population): ...   # the evaluator's params for that policy
+        # optional: transfer_problems and transfer, to seed a run from another run's checkpoint
 
     register(MyEncoding)
 
@@ -145,6 +146,17 @@ class Encoding(abc.ABC):
         """Problems of a restored learner state and champion (a damaged checkpoint, or one written by a
         kx whose layout differed); empty when sound."""
         return []
+
+    def transfer_problems(self, source: "Encoding", state: Any, seeding: str) -> list[str]:
+        """Why ``state`` (a :class:`~kx.evolve.checkpoint.RunState` of a run of ``source``, an encoding of
+        this method) cannot seed this run with ``seeding`` (:mod:`kx.evolve.transfer`); empty when it can.
+        A problem about the seeding itself starts with ``"seeding"``."""
+        return [f"method {self.name!r} does not transfer populations"]
+
+    def transfer(self, key: jax.Array, source: "Encoding", state: Any, seeding: str, order) -> Any:
+        """This run's first learner state seeded from ``state`` (checked by :meth:`transfer_problems`);
+        ``order``: the source population's indices, fittest first (the ``half`` seeding only)."""
+        raise NotImplementedError(f"method {self.name!r} does not transfer populations")
 
     def describe(self) -> str:
         """One line for the run's log: the method and the shape of its policies."""

@@ -103,6 +103,9 @@ class HyperNEATEncoding(NEATEncoding):
             raise ConfigError(msg) from None
         self.neat_params, self.neat = learner(n, self.neat_config, "hyperneat")
 
+    def _maps(self, source):
+        return None  # a CPPN plays every task's substrate: it carries over unchanged (or not at all)
+
     def policy_for(self, sim):
         from kx.hyperneat.bev import bev_policy
 

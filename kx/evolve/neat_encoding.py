@@ -60,6 +60,29 @@ def check_capacity(n: dict, section: str, population_size: int) -> None:
           f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
 
 
+def resize(genomes, source, target):
+    """Genomes of NEAT config ``source`` in the (at least as large) capacity of config ``target`` with
+    the same inputs and outputs: empty node slots and connection columns appended, nothing else changed."""
+    import jax.numpy as jnp
+
+    from kx.neat.types import EMPTY
+
+    dn, dc = target.max_nodes - source.max_nodes, target.max_conns - source.max_conns
+    if dn < 0 or dc < 0 or (source.n_inputs, source.n_outputs) != (target.n_inputs, target.n_outputs):
+        raise ValueError("resize: the target capacity must hold the source's and have its inputs and outputs")
+    fill = {"node_id": EMPTY, "node_kind": EMPTY, "node_act": 0, "node_valid": False, "conn_innov": EMPTY,
+            "conn_src": EMPTY, "conn_dst": EMPTY, "conn_weight": 0.0, "conn_enabled": False, "conn_valid": False}
+
+    def pad(name, a):
+        n = dn if name.startswith("node") else dc
+        if n == 0:
+            return a
+        widths = [(0, 0)] * (a.ndim - 1) + [(0, n)]
+        return jnp.pad(a, widths, constant_values=jnp.asarray(fill[name], a.dtype))
+
+    return genomes.replace(**{f: pad(f, getattr(genomes, f)) for f in fill})
+
+
 def learner(n: dict, config, section: str) -> tuple[NEATParams, NEAT]:
     """The rates of config section ``n`` and the NEAT learner of ``config`` with them; a value out of
     range (NEAT's own checks, :func:`kx.neat.algorithm.validate`) as a :class:`ConfigError` naming
@@ -134,6 +157,82 @@ class NEATEncoding(Encoding):
 
     def policy_params(self, population):
         return self.neat.networks(population)
+
+    # ------------------------------------------------------------------------------------- transfer
+
+    def _maps(self, source):
+        """``(input_map, output_map)`` from the source's networks to this run's, or ``None`` when they
+        have the same inputs and outputs (the genomes carry over unchanged)."""
+        s, t = source.neat_config, self.neat_config
+        if (s.n_inputs, s.n_outputs) == (t.n_inputs, t.n_outputs):
+            return None
+        return observe.full_layout_map(source.sim, self.sim)
+
+    def transfer_problems(self, source, state, seeding):
+        s, t, sec = source.neat_config, self.neat_config, self.section
+        out = []
+        p_s, p_t = s.population_size, t.population_size
+        if seeding == "population" and p_s != p_t:
+            out.append(f"seeding 'population' carries the source's {p_s} genomes and this run's population_size is "
+                       f"{p_t} (seed with 'champion' or 'half', or use population_size {p_s})")
+        if seeding == "half" and (p_s + 1) // 2 > p_t:
+            out.append(f"seeding 'half' carries the source's fittest {(p_s + 1) // 2} genomes and this run's "
+                       f"population_size is {p_t}")
+        if s.activation_options != t.activation_options:
+            out.append(f"the source's genomes index the activations {s.activation_options}, this run's "
+                       f"{t.activation_options} ({sec}.hidden_activation / output_activation / activations)")
+        maps = None
+        try:
+            maps = self._maps(source)
+        except ValueError as e:
+            out.append(str(e))
+        if maps is None:
+            if (s.n_inputs, s.n_outputs) != (t.n_inputs, t.n_outputs):
+                out.append(f"the source's networks have {s.n_inputs} inputs and {s.n_outputs} outputs, this run's "
+                           f"{t.n_inputs} and {t.n_outputs}, and no mapping between them exists")
+            for what, a, b, field in (("hidden-node slots", s.n_hidden, t.n_hidden, "max_hidden"),
+                                      ("connection columns", s.max_conns, t.max_conns, "extra_conns"),
+                                      ("genes per genome", s.genes, t.genes, "extra_genes")):
+                if a > b:
+                    out.append(f"the source's genomes have {a} {what} and this run's config {b} ({sec}.{field}): "
+                               f"its genome capacity does not fit")
+        else:
+            from kx.neat import transfer as neat_transfer
+
+            genomes = self._seed_genomes(state, seeding, None)
+            out += neat_transfer.fit_problems(genomes, s, t, *maps, next_node_id=state.learner.next_node_id)
+        return out
+
+    def _seed_genomes(self, state, seeding, order):
+        """The source genomes a seeding carries (``order`` None: the whole population stands in for the
+        fittest half, for capacity checks)."""
+        from kx.evolve.encoding import stack
+
+        pop = state.learner.population
+        if seeding == "champion":
+            return stack([state.champion])
+        if seeding == "half" and order is not None:
+            m = (jax.tree.leaves(pop)[0].shape[0] + 1) // 2
+            return jax.tree.map(lambda a: a[np.asarray(order[:m])], pop)
+        return pop
+
+    def transfer(self, key, source, state, seeding, order):
+        from kx.neat import transfer as neat_transfer
+
+        s, t = source.neat_config, self.neat_config
+        learner = state.learner
+        genomes = self._seed_genomes(state, seeding, order)
+        next_node, next_innov = learner.next_node_id, learner.next_innov
+        k_map, k_seed = jax.random.split(key)
+        maps = self._maps(source)
+        if maps is None:  # the same inputs and outputs: the genomes carry over unchanged (padded to this capacity)
+            genomes = resize(genomes, s, t)
+        else:  # Algorithm 1
+            genomes, next_node, next_innov = neat_transfer.map_population(
+                k_map, genomes, s, t, *maps, next_node_id=next_node, next_innov=next_innov, params=self.neat_params)
+        if seeding != "population":
+            genomes, next_node, next_innov = self.neat.seed_copies(k_seed, genomes, next_node, next_innov)
+        return self.neat.init_from(genomes, next_node, next_innov, threshold=learner.threshold)
 
     def check(self, state, champion):
         from kx.neat.checks import check_genome, check_population

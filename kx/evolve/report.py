@@ -67,6 +67,10 @@ def progress_line(row: dict, total: int, eta: float | None, encoding=None) -> st
     figures (species for NEAT, step size for CMA-ES), the live share of lane-steps and the time."""
     eta_text = "" if eta is None else f"  ETA {_fmt_seconds(eta)}"
     own = encoding.progress(row) if encoding is not None else ""
+    if "mean_novelty" in row:  # the novelty hybrid's figures
+        nov = (f"novelty {float(row['mean_novelty']):.3f}  archive {int(row['archive_size'])} "
+               f"(+{int(row['archive_added'])})")
+        own = f"{own}  {nov}" if own else nov
     return (f"gen {int(row['generation']) + 1:3d}/{total}  best {float(row['best_fitness']):.4f}"
             f"  mean {float(row['mean_fitness']):.4f}  median {float(row['median_fitness']):.4f}"
             f"  validation {float(row['champion_validation']):.4f} (best {float(row['best_validation']):.4f}, gen "

@@ -27,7 +27,8 @@ validation states.
 
 The run directory::
 
-    config.json        the resolved config (written atomically)
+    config.json        the resolved config (written atomically); a transferred run adds its source
+                       (transfer_source: path, step, config, digest; kx.evolve.transfer)
     metrics.csv        one row per generation: training fitness, the selection score, behaviour, the
                        generation champion's validation score and the best so far, timings, and the
                        encoding's own columns (NEAT: species, genome sizes, overflow counters)
@@ -42,6 +43,7 @@ The run directory::
 from __future__ import annotations
 
 import dataclasses
+import json
 import pathlib
 import shutil
 import time
@@ -83,6 +85,7 @@ class Trainer:
         keys = streams.validation(cfg.seed)
         self.validation_eval_key = keys.eval
         self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
+        self.source = None  # the transfer source, once attach_source has restored it
 
     def evaluate(self, population, starts, key, counters=None):
         """Every individual of ``population`` on ``starts`` (:class:`~kx.sim.types.EpisodeStats` [P, T])."""
@@ -103,9 +106,33 @@ class Trainer:
             out[name] = float(stats.fitness.mean())
         return out
 
+    @property
+    def transfers(self) -> bool:
+        """Whether the run is seeded from another run's checkpoint (``transfer.source``)."""
+        return bool(self.cfg.transfer.source)
+
+    def attach_source(self):
+        """Restores and checks the transfer source (:func:`kx.evolve.transfer.load`; ``ConfigError``
+        with the reason if it cannot seed this run). Returns it, or ``None`` with no transfer."""
+        if self.transfers and self.source is None:
+            from kx.evolve import transfer
+
+            self.source = transfer.load(self.cfg, self)
+        return self.source
+
     def init(self) -> RunState:
+        """The run state before generation 0: a fresh learner, or one seeded from the transfer source."""
+        if not self.transfers:
+            return self._init()
+        from kx.evolve import transfer
+
+        learner = transfer.seed(self, self.attach_source(), streams.transfer(self.cfg.seed))
+        return self._init(learner)
+
+    def _init(self, learner=None) -> RunState:
         seed = self.cfg.seed
-        learner = self.encoding.init(streams.learner_init(seed))
+        if learner is None:
+            learner = self.encoding.init(streams.learner_init(seed))
         population, _ = self.encoding.ask(streams.learner_ask(seed, 0), learner)
         return RunState(learner=learner, objective=self.objective.init(self.cfg.population_size),
                         champion=self.encoding.individual(population, 0),  # a placeholder until generation 1
@@ -120,7 +147,7 @@ class Trainer:
 
     def restore(self, run_dir, step: int | None = None):
         """``(step, state, meta)`` of a checkpoint of ``run_dir`` written with this config's method and shapes."""
-        return ckpt.restore(run_dir, jax.eval_shape(self.init), self.cfg.method, step, check=self.check)
+        return ckpt.restore(run_dir, jax.eval_shape(self._init), self.cfg.method, step, check=self.check)
 
     def step(self, state: RunState) -> GenerationResult:
         """Evaluate generation ``state.generation``'s population, validate its champion, breed the next one."""
@@ -239,6 +266,8 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
     enc = trainer.encoding
     if step is not None and not resume:
         raise RunError("--step: only with --resume")
+    if trainer.transfers and not (resume and ckpt.steps(run_dir)):
+        trainer.attach_source()  # refused with the reason before anything is written
     prepare_run_dir(run_dir, resume, overwrite)
     metrics_path = run_dir / "metrics.csv"
     state, start = None, 0
@@ -266,7 +295,14 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
         if start >= cfg.generations:
             log(f"nothing to do: {start} generations done, {cfg.generations} asked")
     run_dir.mkdir(parents=True, exist_ok=True)
-    report.write_json(run_dir / "config.json", cfg.to_dict())
+    record = cfg.to_dict()
+    if trainer.source is not None:
+        record[cfg_lib.SOURCE_RECORD] = trainer.source.record()
+    elif resume and trainer.transfers:  # keep the record the run was started with
+        saved_record = json.loads((run_dir / "config.json").read_text()).get(cfg_lib.SOURCE_RECORD)
+        if saved_record is not None:
+            record[cfg_lib.SOURCE_RECORD] = saved_record
+    report.write_json(run_dir / "config.json", record)
     rows = report.read_rows(metrics_path, below=start)
     report.write_rows(metrics_path, rows, trainer.fields)  # drops rows of generations after the checkpoint
     manager = ckpt.manager(run_dir / "checkpoints", cfg.keep_checkpoints)
@@ -274,6 +310,10 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
         state = trainer.init()
     log(f"kx.train: {cfg.task} {enc.describe()}, population {cfg.population_size}, {cfg.trials} trials, "
         f"{cfg.generations} generations, objective {cfg.objective}, seed {cfg.seed} -> {run_dir}")
+    if trainer.source is not None:
+        src = trainer.source
+        log(f"transfer: seeded ({src.seeding}) from {src.run_dir} checkpoint {src.step} ({src.cfg.task}, "
+            f"{int(src.state.generation)} generations; {src.digest[:19]}...)")
     baselines = trainer.validation_baselines()
     report.write_json(run_dir / "baselines.json", {"trials": cfg.validation_trials, "states": "validation",
                                                    "mean_fitness": baselines})

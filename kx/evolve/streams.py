@@ -14,6 +14,8 @@ A run with seed ``s`` derives everything from ``root = jax.random.key(s)``::
                                              fold_in(fold_in(policy noise, l), t) (stochastic policies only)
     LEARNER:     init = fold_in(stream, 0)
                  generation g's tell = fold_in(fold_in(stream, 1), g), its ask = fold_in(fold_in(stream, 2), g)
+                 transfer = fold_in(stream, 3) (a transferred run's seeding: mutated copies, new links'
+                            weights; it replaces init)
 
 Why ``fold_in`` and distinct indices everywhere: under JAX's default RNG ``split(k, n)[i]`` equals
 ``fold_in(k, i)``, so a key that is split for one use and folded for another hands the same key to
@@ -78,3 +80,8 @@ def learner_step(seed: int, generation: int) -> jax.Array:
 def learner_ask(seed: int, generation: int) -> jax.Array:
     """The key of generation ``generation``'s ``ask`` (CMA-ES samples its population with it)."""
     return jax.random.fold_in(jax.random.fold_in(_stream(seed, LEARNER), 2), generation)
+
+
+def transfer(seed: int) -> jax.Array:
+    """The key of a transferred run's seeding (kx.evolve.transfer), used in the place of ``learner_init``."""
+    return jax.random.fold_in(_stream(seed, LEARNER), 3)

@@ -129,6 +129,42 @@ def init(key: jax.Array, params: NEATParams, config: NEATConfig) -> NEATState:
         best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32))
 
 
+def init_from(population: Genome, next_node_id: jax.Array, next_innov: jax.Array, threshold: jax.Array,
+              params: NEATParams, config: NEATConfig) -> NEATState:
+    """A first state whose population is given (a transferred or seeded one, ``[P, ...]`` in
+    ``config``'s shapes): speciated from scratch at ``threshold`` (its first genome founds the first
+    species, as in :func:`init`), the innovation counters carried on, no species history and no best
+    genome yet."""
+    s = config.species_capacity
+    threshold = jnp.asarray(threshold, F32)
+    reps = _take(population, jnp.zeros((s,), I32))
+    species, alive, founded, _ = speciate(population, reps, jnp.zeros((s,), bool), threshold, params)
+    uid = jnp.where(founded, jnp.cumsum(founded) - 1, -1).astype(I32)
+    return NEATState(
+        population=population, species=species, species_alive=alive, species_uid=uid,
+        species_best=jnp.full((s,), -jnp.inf, F32), species_improved=jnp.zeros((s,), I32), threshold=threshold,
+        next_node_id=jnp.asarray(next_node_id, I32), next_innov=jnp.asarray(next_innov, I32),
+        next_species_uid=jnp.sum(founded, dtype=I32), generation=jnp.zeros((), I32),
+        best_genome=_take(population, 0), best_fitness=jnp.asarray(-jnp.inf, F32))
+
+
+def seed_copies(key: jax.Array, genomes: Genome, next_node_id: jax.Array, next_innov: jax.Array,
+                params: NEATParams, config: NEATConfig) -> tuple[Genome, jax.Array, jax.Array]:
+    """A population of ``config.population_size`` genomes seeded by the ``M`` given ones (``[M, ...]``,
+    ``M <= population_size``): genome ``i < M`` is ``genomes[i]`` unchanged, genome ``i >= M`` a copy of
+    ``genomes[i % M]`` mutated once, as an offspring is (:func:`kx.neat.innovation.mutate_population`,
+    innovation numbers shared across the population). Returns ``(population, next_node_id, next_innov)``."""
+    p = config.population_size
+    m = jax.tree.leaves(genomes)[0].shape[0]
+    if not 1 <= m <= p:
+        raise NEATError(f"seed_copies: {m} seed genomes for a population of {p}: allowed 1..{p}")
+    idx = jnp.arange(p, dtype=I32)
+    base = _take(genomes, idx % m)
+    pop, next_node_id, next_innov, _ = inn.mutate_population(key, base, idx < m, jnp.asarray(next_node_id, I32),
+                                                             jnp.asarray(next_innov, I32), params, config)
+    return pop, next_node_id, next_innov
+
+
 def ask(key: jax.Array, state: NEATState, params: NEATParams, config: NEATConfig) -> tuple[Genome, NEATState]:
     """The population to evaluate (reproduction happens in :func:`tell`; ``key`` is unused)."""
     del key, params, config
@@ -318,3 +354,21 @@ class NEAT:
 
     def networks(self, population: Genome) -> Network:
         return self._build(population)
+
+    def init_from(self, population: Genome, next_node_id, next_innov, threshold=None,
+                  params: NEATParams | None = None) -> NEATState:
+        """:func:`init_from` (``threshold`` default: the parameters' ``compat_threshold``)."""
+        params = params or self.default_params
+        threshold = params.compat_threshold if threshold is None else threshold
+        if not hasattr(self, "_init_from"):
+            self._init_from = jax.jit(functools.partial(init_from, config=self.config))
+        return self._init_from(population, next_node_id, next_innov, threshold, params)
+
+    def seed_copies(self, key, genomes: Genome, next_node_id, next_innov, params: NEATParams | None = None):
+        """:func:`seed_copies` with this learner's config."""
+        m = jax.tree.leaves(genomes)[0].shape[0]
+        if not 1 <= m <= self.config.population_size:
+            raise NEATError(f"seed_copies: {m} seed genomes for a population of {self.config.population_size}")
+        if not hasattr(self, "_seed_copies"):
+            self._seed_copies = jax.jit(functools.partial(seed_copies, config=self.config))
+        return self._seed_copies(key, genomes, next_node_id, next_innov, params or self.default_params)

@@ -47,7 +47,7 @@ Innovation numbers (one per distinct ``(src id, dst id)`` pair of the mapped pop
 
 Columns are assigned anew for the whole population: the sorted distinct innovation numbers take
 columns ``0..n-1``. The mapped population therefore satisfies :func:`kx.neat.checks.check_population`
-and can continue evolving under the target config (:func:`seed_state` builds a run state for it).
+and can continue evolving under the target config (:func:`kx.neat.algorithm.init_from` builds a run state for it).
 
 Everything here runs once per transfer on the host (numpy); the result is a :class:`Genome` of jnp
 arrays with the target's shapes.
@@ -61,9 +61,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Genome, NEATConfig, NEATError, NEATParams, NEATState
+from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Genome, NEATConfig, NEATError, NEATParams
 
-__all__ = ["fit_problems", "map_population", "seed_state"]
+__all__ = ["fit_problems", "map_population"]
 
 
 @dataclasses.dataclass
@@ -351,28 +351,3 @@ def map_population(key: jax.Array, population: Genome, source: NEATConfig, targe
     out = Genome(**{f: jnp.asarray(getattr(out, f)[0] if plan.single else getattr(out, f), dtypes[f])
                     for f in dtypes})
     return out, jnp.asarray(plan.next_node_id, jnp.int32), jnp.asarray(plan.next_innov, jnp.int32)
-
-
-def seed_state(population: Genome, next_node_id, next_innov, params: NEATParams, config: NEATConfig) -> NEATState:
-    """A run state at generation 0 whose population is ``population`` (``config.population_size``
-    genomes, e.g. from :func:`map_population`), speciated as :func:`kx.neat.algorithm.init` speciates its
-    first population, with the given counters; no species history, no best genome yet (the first
-    genome stands in, at fitness -inf)."""
-    from kx.neat import algorithm as alg
-
-    p, s = config.population_size, config.species_capacity
-    if population.node_id.shape != (p, config.max_nodes) or population.conn_innov.shape != (p, config.max_conns):
-        raise NEATError(f"seed_state: a population of shape {tuple(population.node_id.shape)} nodes, "
-                        f"{tuple(population.conn_innov.shape)} conns; the config wants ({p}, {config.max_nodes}) "
-                        f"and ({p}, {config.max_conns})")
-    reps = jax.tree.map(lambda x: x[jnp.zeros((s,), jnp.int32)], population)
-    threshold = jnp.asarray(params.compat_threshold, jnp.float32)
-    species, alive, founded, _ = alg.speciate(population, reps, jnp.zeros((s,), bool), threshold, params)
-    uid = jnp.where(founded, jnp.cumsum(founded) - 1, -1).astype(jnp.int32)
-    return NEATState(
-        population=population, species=species, species_alive=alive, species_uid=uid,
-        species_best=jnp.full((s,), -jnp.inf, jnp.float32), species_improved=jnp.zeros((s,), jnp.int32),
-        threshold=threshold, next_node_id=jnp.asarray(next_node_id, jnp.int32),
-        next_innov=jnp.asarray(next_innov, jnp.int32), next_species_uid=jnp.sum(founded, dtype=jnp.int32),
-        generation=jnp.zeros((), jnp.int32), best_genome=jax.tree.map(lambda x: x[0], population),
-        best_fitness=jnp.asarray(-jnp.inf, jnp.float32))

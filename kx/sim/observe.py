@@ -100,6 +100,25 @@ def _features(state: State, config: KeepAwayConfig, n_mates: int, n_takers: int)
     return jnp.stack(feats)
 
 
+def full_layout_map(source: KeepAwayConfig, target: KeepAwayConfig) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """Where each ``full``-layout input and output of task ``source`` lies in the layout of the larger
+    task ``target``: ``(input_map, output_map)``, ``input_map[i]`` the target index of source input
+    ``i``. Each feature keeps its meaning: the holder's distance to the r-th nearest teammate stays
+    that, and so on for every group of :func:`full_obs`; the target's other inputs and outputs are
+    those of the agents the source did not have. Output ``o`` (hold, pass to the o-th nearest
+    teammate) stays ``o``."""
+    ms, ts = source.n_keepers - 1, source.n_takers
+    mt, tt = target.n_keepers - 1, target.n_takers
+    if ms > mt or ts > tt:
+        raise ValueError(f"full_layout_map: {source.name} is larger than {target.name}")
+    groups = ((1, 1), (ms, mt), (ts, tt), (ms, mt), (ts, tt), (ms, mt), (ms, mt))  # (source size, target size)
+    input_map, offset = [], 0
+    for n_s, n_t in groups:
+        input_map += [offset + r for r in range(n_s)]
+        offset += n_t
+    return tuple(input_map), tuple(range(ms + 1))
+
+
 def _min(xs):
     xs = list(xs)
     out = xs[0]

@@ -1,0 +1,172 @@
+"""Policy transfer (SPEC section 5): a run seeded with the population of another run's checkpoint.
+
+A target run names its source in its config's ``transfer`` section::
+
+    transfer.source   the source run's directory ("": no transfer)
+    transfer.step     its checkpoint (-1: the latest)
+    transfer.seeding  "population" (the whole source population, the paper's best and the default),
+                      "champion" (the source's validated champion and mutated copies of it) or
+                      "half" (the fittest half of the source population and mutated copies of them)
+
+:func:`load` reads the source (its ``config.json`` and checkpoint, through the source's own
+:class:`~kx.evolve.run.Trainer`) and refuses, with the reason and before any compute, a source that is
+missing or damaged, of another method or layout, of a larger task than the target, whose genomes do
+not fit the target's config, or a seeding the method cannot carry out. :func:`seed` then builds the
+target's first learner state with the encoding's ``transfer`` (NEAT: fixed-layout genomes and CPPNs
+unchanged, full-layout genomes mapped by Algorithm 1, :mod:`kx.neat.transfer`; CMA-ES: the source's
+mean and step size). The objective's state (the novelty archive) starts empty: behaviours of two tasks
+are not comparable.
+
+"Fittest" (the ``half`` seeding) is the mean fitness on the source run's own validation states: a
+checkpoint's population is the offspring bred after its last generation, not yet evaluated, so it is
+evaluated once, in the source task, to rank it.
+
+The target run's ``config.json`` records the source under ``transfer_source``: its path, checkpoint
+step and generation, its config, and :func:`digest` of the restored run state (sha-256 over every
+array of it), so that a result can be traced to the exact population it came from.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import pathlib
+from typing import Any
+
+import jax
+import ml_collections
+import numpy as np
+
+from kx.evolve.config import ConfigError
+
+SEEDINGS = ("population", "champion", "half")
+
+
+def check_section(cfg: ml_collections.ConfigDict) -> None:
+    """The ``transfer`` section's values (no file is read here)."""
+    t = cfg.transfer
+    if not isinstance(t.source, str):
+        raise ConfigError(f"transfer.source: allowed a run directory (a string; '' for no transfer), got {t.source!r}")
+    if not (isinstance(t.step, int) and not isinstance(t.step, bool) and (t.step == -1 or t.step >= 1)):
+        raise ConfigError(f"transfer.step: allowed -1 (the latest checkpoint) or a checkpoint step >= 1, "
+                          f"got {t.step!r}")
+    if not (isinstance(t.seeding, str) and t.seeding in SEEDINGS):
+        raise ConfigError(f"transfer.seeding: allowed one of {SEEDINGS}, got {t.seeding!r}")
+
+
+def digest(tree: Any) -> str:
+    """``sha256:<hex>`` of every array of ``tree`` (its path, dtype, shape and bytes, in tree order)."""
+    h = hashlib.sha256()
+    for path, leaf in jax.tree_util.tree_flatten_with_path(tree)[0]:
+        a = np.asarray(jax.device_get(leaf))
+        if a.dtype == object or jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):
+            a = np.asarray(jax.random.key_data(leaf))
+        h.update(jax.tree_util.keystr(path).encode())
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+@dataclasses.dataclass
+class Source:
+    """A source run's checkpoint, restored and checked against a target run."""
+
+    run_dir: pathlib.Path
+    step: int
+    cfg: ml_collections.ConfigDict  # the source run's config
+    trainer: Any  # the source's kx.evolve.run.Trainer (its encoding and task)
+    state: Any  # its RunState after ``step`` generations
+    digest: str
+    seeding: str
+
+    @property
+    def encoding(self):
+        return self.trainer.encoding
+
+    def population(self):
+        """The checkpoint's population: what the source's next generation would evaluate."""
+        population, _ = self.encoding.ask(_ask_key(self.cfg.seed, int(self.state.generation)), self.state.learner)
+        return population
+
+    def ranking(self) -> np.ndarray:
+        """The population's indices, fittest first, by mean fitness on the source's validation states
+        (ties: the lower index first)."""
+        t = self.trainer
+        stats = t.evaluate(self.population(), t.validation_starts, t.validation_eval_key)
+        f = np.asarray(stats.fitness.mean(axis=1))
+        return np.argsort(-f, kind="stable")
+
+    def record(self) -> dict:
+        """What the target's config.json records of its source."""
+        return {"path": str(self.run_dir), "step": self.step, "generation": int(self.state.generation),
+                "method": self.cfg.method, "task": self.cfg.task, "seeding": self.seeding,
+                "config": self.cfg.to_dict(), "digest": self.digest}
+
+
+def _ask_key(seed: int, generation: int):
+    from kx.evolve import streams
+
+    return streams.learner_ask(seed, generation)
+
+
+def _task_size(task: str) -> tuple[int, int]:
+    from kx.sim.types import KeepAwayConfig
+
+    c = KeepAwayConfig.from_task(task)
+    return c.n_keepers, c.n_takers
+
+
+def load(cfg: ml_collections.ConfigDict, trainer) -> Source:
+    """The source of ``cfg.transfer`` restored for the target run of ``trainer``, or :class:`ConfigError`
+    (naming ``transfer.source``, ``transfer.step`` or ``transfer.seeding``) saying why it cannot seed it."""
+    from kx.evolve import config as cfg_lib
+    from kx.evolve.checkpoint import RunError
+    from kx.evolve.run import Trainer
+
+    t = cfg.transfer
+    check_section(cfg)
+    if not t.source:
+        raise ConfigError("transfer.source: empty (no transfer configured)")
+    run_dir = pathlib.Path(t.source).expanduser().absolute()
+    if not run_dir.is_dir():
+        raise ConfigError(f"transfer.source: {run_dir} is not a directory (the source must be a kx run directory)")
+    try:
+        scfg = cfg_lib.read_run_config(run_dir / "config.json")
+    except ConfigError as e:
+        raise ConfigError(f"transfer.source: {e}") from None
+    if scfg.method != cfg.method:
+        raise ConfigError(f"transfer.source: {run_dir} is a {scfg.method!r} run and this run's method is "
+                          f"{cfg.method!r}; a population transfers only between runs of one method")
+    if scfg.layout != cfg.layout:
+        raise ConfigError(f"transfer.source: {run_dir} evolved {scfg.layout!r}-layout networks and this run's layout "
+                          f"is {cfg.layout!r}; a population transfers only between runs of one layout")
+    (sk, st), (tk, tt) = _task_size(scfg.task), _task_size(cfg.task)
+    if sk > tk or st > tt:
+        raise ConfigError(f"transfer.source: the source task {scfg.task} ({sk} keepers, {st} takers) is larger than "
+                          f"this run's task {cfg.task} ({tk} keepers, {tt} takers); policies transfer to tasks at "
+                          "least as large")
+    try:
+        source_trainer = Trainer(scfg)
+    except ConfigError as e:
+        raise ConfigError(f"transfer.source: {run_dir}'s config is not valid for this kx ({e})") from None
+    try:
+        step, state, _ = source_trainer.restore(run_dir, None if t.step == -1 else t.step)
+    except RunError as e:
+        field = "transfer.step" if t.step != -1 and f"--step {t.step}" in str(e) else "transfer.source"
+        raise ConfigError(f"{field}: {e}") from None
+    if t.seeding == "champion" and int(state.champion_generation) < 0:
+        raise ConfigError(f"transfer.seeding: 'champion', but checkpoint {step} of {run_dir} has no validated "
+                          "champion yet")
+    problems = trainer.encoding.transfer_problems(source_trainer.encoding, state, t.seeding)
+    if problems:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        field = "transfer.seeding" if problems[0].startswith("seeding") else "transfer.source"
+        raise ConfigError(f"{field}: checkpoint {step} of {run_dir} cannot seed this run: {problems[0]}{more}")
+    return Source(run_dir=run_dir, step=step, cfg=scfg, trainer=source_trainer, state=state, digest=digest(state),
+                  seeding=t.seeding)
+
+
+def seed(trainer, source: Source, key) -> Any:
+    """The target run's first learner state, seeded from ``source`` by its encoding."""
+    order = source.ranking() if source.seeding == "half" else None
+    return trainer.encoding.transfer(key, source.encoding, source.state, source.seeding, order)

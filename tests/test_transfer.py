@@ -1,0 +1,229 @@
+"""Policy transfer through the run loop (kx.evolve.transfer): seedings, the source's record, refusals.
+
+Algorithm 1 itself (the full-layout genome mapping) is tested in test_neat_transfer.py; here the
+source runs are tiny (a few genomes, short episodes) and built once per module.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from kx.evolve import config as cfg_lib
+from kx.evolve import run as run_lib
+from kx.evolve import streams, transfer
+from kx.evolve.config import ConfigError
+from kx.neat.checks import check_population
+from kx.sim import env
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+COMMON = ["trials=2", "sim.max_iterations=60", "validation_trials=4", "gif=false", "checkpoint_every=1",
+          "keep_checkpoints=5"]
+SIZES = {"neat": 12, "hyperneat": 12, "cma_es": 6}
+SOURCE_GENERATIONS = 2
+
+
+def _config(method: str, task: str = "3v2", *extra: str):
+    return cfg_lib.load(REPO / "configs" / f"{method}_{task}.py",
+                        [f"population_size={SIZES[method]}", *COMMON, *extra])
+
+
+@pytest.fixture(scope="module")
+def sources(tmp_path_factory):
+    """Each method's tiny 3v2 source run, trained once when first asked for."""
+    built = {}
+
+    def get(method):
+        if method not in built:
+            run_dir = tmp_path_factory.mktemp("sources") / method
+            run_lib.train(_config(method, "3v2", f"generations={SOURCE_GENERATIONS}"), run_dir, log=lambda s: None)
+            built[method] = run_dir
+        return built[method]
+    return get
+
+
+def _target(method, source_dir, task="4v3", *extra):
+    return _config(method, task, "generations=1", f"transfer.source={source_dir}", *extra)
+
+
+def _leaves_equal(a, b) -> bool:
+    return all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
+
+
+@pytest.mark.parametrize("method", ["neat", "hyperneat"])
+def test_population_carries_over_and_keeps_its_source_fitness(sources, method):
+    """Fixed-layout genomes and CPPNs carry over unchanged: the target's first population is the source
+    checkpoint's, and on the source's own start states it scores exactly what the source run gives it
+    in its next generation."""
+    src_dir = sources(method)
+    trainer = run_lib.Trainer(_target(method, src_dir))
+    state = trainer.init()
+    src_trainer, step, src_state, _ = run_lib.restore(src_dir)
+    assert step == SOURCE_GENERATIONS
+    assert _leaves_equal(state.learner.population, src_state.learner.population)
+    assert int(state.generation) == 0 and int(state.champion_generation) == -1
+    assert check_population(state.learner.population, trainer.encoding.neat_config) == []
+    # the innovation counters carry on (new innovations never reuse a source number)
+    assert int(state.learner.next_innov) == int(src_state.learner.next_innov)
+    assert int(state.learner.next_node_id) == int(src_state.learner.next_node_id)
+
+    # the source run's generation SOURCE_GENERATIONS, evaluated by the source run itself
+    src_row = src_trainer.step(src_state).row
+    keys = streams.training(src_trainer.cfg.seed, SOURCE_GENERATIONS)
+    starts = env.reset_batch(keys.starts, src_trainer.cfg.trials, src_trainer.exp.sim_params, src_trainer.exp.sim)
+    f = np.asarray(src_trainer.evaluate(state.learner.population, starts, keys.eval).fitness.mean(axis=1))
+    assert f.max() == np.float32(src_row["best_fitness"])
+    assert np.float32(np.clip(f.mean(), f.min(), f.max())) == np.float32(src_row["mean_fitness"])
+
+
+def test_full_layout_population_mapped_by_algorithm_1(tmp_path):
+    """A full-layout 3v2 population (13 inputs, 3 outputs) seeds a 4v3 run (19 inputs, 4 outputs) through
+    Algorithm 1 (kx.neat.transfer, tested on its own in test_neat_transfer.py), and the target plays on."""
+    from kx.neat.algorithm import build_networks
+    from kx.neat.network import forward
+    from kx.sim import observe
+
+    full = REPO / "configs" / "neat_full_3v2.py"
+    src_dir = tmp_path / "src"
+    run_lib.train(cfg_lib.load(full, ["population_size=12", *COMMON, "generations=1"]), src_dir, log=lambda s: None)
+    cfg = cfg_lib.load(full, ["population_size=12", *COMMON, "generations=1", "task=4v3",
+                              f"transfer.source={src_dir}"])
+    trainer = run_lib.Trainer(cfg)
+    state = trainer.init()
+    t_cfg, s_state = trainer.encoding.neat_config, trainer.source.state
+    s_cfg = trainer.source.encoding.neat_config
+    assert (s_cfg.n_inputs, s_cfg.n_outputs, t_cfg.n_inputs, t_cfg.n_outputs) == (13, 3, 19, 4)
+    assert check_population(state.learner.population, t_cfg) == []
+    # with the new agents' inputs at 0, the old outputs are the source network's
+    in_map, out_map = observe.full_layout_map(trainer.source.encoding.sim, trainer.encoding.sim)
+    x = np.random.default_rng(0).uniform(0, 1, (13, 5)).astype(np.float32)
+    xt = np.zeros((19, 5), np.float32)
+    xt[list(in_map)] = x
+    src_out = jax.vmap(lambda n: forward(n, x, s_cfg))(build_networks(s_state.learner.population, s_cfg))
+    tgt_out = jax.vmap(lambda n: forward(n, xt, t_cfg))(build_networks(state.learner.population, t_cfg))
+    np.testing.assert_allclose(np.asarray(tgt_out)[:, list(out_map)], np.asarray(src_out), atol=1e-5)
+    result = trainer.step(state)
+    assert result.row["generation"] == 0 and np.isfinite(result.row["best_fitness"])
+    assert check_population(result.state.learner.population, t_cfg) == []
+
+
+@pytest.mark.parametrize("seeding", ["champion", "half"])
+def test_seedings_with_mutated_copies(sources, seeding):
+    src_dir = sources("neat")
+    trainer = run_lib.Trainer(_target("neat", src_dir, "4v3", f"transfer.seeding={seeding}"))
+    state = trainer.init()
+    pop = state.learner.population
+    src = trainer.source
+    p = trainer.cfg.population_size
+    assert check_population(pop, trainer.encoding.neat_config) == []
+    if seeding == "champion":
+        seeds = jax.tree.map(lambda a: a[None], src.state.champion)
+    else:
+        order = src.ranking()
+        seeds = jax.tree.map(lambda a: a[order[: (p + 1) // 2]], src.state.learner.population)
+        # the ranking is by fitness on the source's validation states, fittest first
+        t = src.trainer
+        fv = np.asarray(t.evaluate(src.state.learner.population, t.validation_starts,
+                                   t.validation_eval_key).fitness.mean(axis=1))
+        assert np.all(np.diff(fv[order]) <= 0)
+    m = jax.tree.leaves(seeds)[0].shape[0]
+    assert _leaves_equal(jax.tree.map(lambda a: a[:m], pop), seeds)
+    # the copies are mutated once, as offspring are (a weight mutation that selects no gene, or an
+    # add-link with no link left, leaves a copy as it was: most copies still differ from their seed)
+    changed = [not _leaves_equal(jax.tree.map(lambda a: np.asarray(a[i]), pop),
+                                 jax.tree.map(lambda a: np.asarray(a[i % m]), seeds)) for i in range(m, p)]
+    assert sum(changed) >= len(changed) / 2, changed
+
+
+def test_cma_es_starts_at_the_source_distribution(sources):
+    src_dir = sources("cma_es")
+    trainer = run_lib.Trainer(_target("cma_es", src_dir))
+    state = trainer.init()
+    src = trainer.source
+    np.testing.assert_array_equal(np.asarray(state.learner.mean), np.asarray(src.state.learner.mean))
+    assert float(state.learner.std) == float(src.state.learner.std)
+    champ = run_lib.Trainer(_target("cma_es", src_dir, "4v3", "transfer.seeding=champion")).init()
+    np.testing.assert_array_equal(np.asarray(champ.learner.mean), np.asarray(src.state.champion))
+
+
+def test_target_run_records_its_source_and_resumes(sources, tmp_path):
+    src_dir = sources("neat")
+    run_dir = tmp_path / "target"
+    run_lib.train(_target("neat", src_dir, "4v3", "generations=2"), run_dir, log=lambda s: None)
+    record = json.loads((run_dir / "config.json").read_text())[cfg_lib.SOURCE_RECORD]
+    _, step, src_state, _ = run_lib.restore(src_dir)
+    assert record["path"] == str(src_dir) and record["step"] == step == SOURCE_GENERATIONS
+    assert record["generation"] == SOURCE_GENERATIONS and record["task"] == "3v2" and record["seeding"] == "population"
+    assert record["config"] == cfg_lib.read_run_config(src_dir / "config.json").to_dict()
+    assert record["digest"] == transfer.digest(src_state) and record["digest"].startswith("sha256:")
+    # the record does not stop the run from being read or resumed; a resumed run keeps it
+    cfg = cfg_lib.read_run_config(run_dir / "config.json")
+    assert cfg.transfer.source == str(src_dir)
+    cfg.generations = 3
+    row = run_lib.train(cfg, run_dir, resume=True, log=lambda s: None)
+    assert row["generation"] == 2
+    assert json.loads((run_dir / "config.json").read_text())[cfg_lib.SOURCE_RECORD] == record
+    # the target's own checkpoints restore through the fresh-run template
+    _, got, _, _ = run_lib.restore(run_dir)
+    assert got == 3
+
+
+def _refused(cfg, tmp_path, *needles):
+    run_dir = tmp_path / "refused"
+    with pytest.raises(ConfigError) as e:
+        run_lib.train(cfg, run_dir, log=lambda s: None)
+    assert not run_dir.exists(), "refused after writing"
+    for n in needles:
+        assert n in str(e.value), str(e.value)
+    return str(e.value)
+
+
+def test_refusals(sources, tmp_path):
+    neat_src, hn_src = sources("neat"), sources("hyperneat")
+    # one method into another, both ways
+    _refused(_target("neat", hn_src), tmp_path, "transfer.source", "'hyperneat' run", "'neat'")
+    _refused(_target("hyperneat", neat_src), tmp_path, "transfer.source", "'neat' run", "'hyperneat'")
+    # a source larger than the target
+    big = tmp_path / "big"
+    shutil.copytree(neat_src, big)
+    d = json.loads((big / "config.json").read_text())
+    d["task"] = "5v3"
+    (big / "config.json").write_text(json.dumps(d))
+    _refused(_target("neat", big, "4v3"), tmp_path, "transfer.source", "larger", "5v3", "4v3")
+    # genome capacity that does not fit
+    _refused(_target("neat", neat_src, "4v3", "neat.max_hidden=1"), tmp_path, "transfer.source", "neat.max_hidden",
+             "does not fit")
+    # the population seeding needs the source's population size
+    _refused(_target("neat", neat_src, "4v3", "population_size=10"), tmp_path, "12 genomes", "population_size")
+    # missing, not a run, corrupt config, damaged checkpoint, absent step
+    _refused(_target("neat", tmp_path / "nowhere"), tmp_path, "transfer.source", "not a directory")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    _refused(_target("neat", empty), tmp_path, "transfer.source", "config.json")
+    corrupt = tmp_path / "corrupt"
+    shutil.copytree(neat_src, corrupt)
+    (corrupt / "config.json").write_text("{not json")
+    _refused(_target("neat", corrupt), tmp_path, "transfer.source", "corrupt")
+    damaged = tmp_path / "damaged"
+    shutil.copytree(neat_src, damaged)
+    for f in (damaged / "checkpoints" / str(SOURCE_GENERATIONS) / "state").rglob("*"):
+        if f.is_file() and f.stat().st_size > 0:
+            f.write_bytes(b"\0" * f.stat().st_size)
+    _refused(_target("neat", damaged), tmp_path, "transfer.source", "checkpoint")
+    _refused(_target("neat", neat_src, "4v3", "transfer.step=7"), tmp_path, "transfer.step", "no checkpoint 7")
+    # CMA-ES carries a distribution: no fittest half
+    _refused(_target("cma_es", sources("cma_es"), "4v3", "transfer.seeding=half"), tmp_path, "transfer.seeding",
+             "'half'")
+
+
+def test_unknown_seeding_and_step_refused_by_validate():
+    for field, value, needle in (("seeding", "'best'", "transfer.seeding: allowed one of"),
+                                 ("step", "0", "transfer.step: allowed -1")):
+        cfg = cfg_lib.load(None, [f"transfer.{field}={value}"])
+        with pytest.raises(ConfigError, match=needle):
+            cfg_lib.validate(cfg)
