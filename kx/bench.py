@@ -555,8 +555,80 @@ def bench_learning(args) -> None:
     print(f"learning: {neat:.4f} fitness (ratio {neat / cma:.2f} vs cma_es)")
 
 
+def bench_novelty(args) -> None:
+    """Milliseconds of the hybrid objective's generation step (SPEC section 4; :mod:`kx.novelty`): the
+    novelty of 150 behaviour vectors against the rest of the population and a full archive of 1000 (the
+    k = 15 nearest of 1149), the archive update and the hybrid score, jitted, as the run loop calls it
+    (:class:`kx.evolve.objective.Hybrid`), against evaluating the same 150 genomes on 30 trials with
+    the default config (``Trainer.evaluate`` on ``env.reset_batch`` starts). Both warm (medians of
+    repeated calls, blocked until ready), with the first call's cost (compilation) beside them."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import objective as objectives
+    from kx.evolve import run as run_lib
+    from kx.evolve import streams
+    from kx.sim import env
+
+    cfg = cfg_lib.load(None, [f"seed={args.seed}"])
+    trainer = run_lib.Trainer(cfg)
+    enc, exp = trainer.encoding, trainer.exp
+    population, _ = enc.ask(streams.learner_ask(cfg.seed, 0), trainer.init().learner)
+    keys = streams.training(cfg.seed, 0)
+    starts = env.reset_batch(keys.starts, cfg.trials, exp.sim_params, exp.sim)
+    print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; config configs/neat_3v2.py: "
+          f"{cfg.task} {enc.describe()}, population {cfg.population_size}, {cfg.trials} trials")
+
+    def evaluate():
+        stats = trainer.evaluate(population, starts, keys.eval)
+        return jax.block_until_ready((stats.fitness.mean(axis=1), stats.behaviour.mean(axis=2)))
+
+    t0 = time.perf_counter()
+    fitness, behaviour = evaluate()
+    eval_first = time.perf_counter() - t0
+    eval_times = []
+    for _ in range(max(args.repeats, 5)):
+        t0 = time.perf_counter()
+        evaluate()
+        eval_times.append(time.perf_counter() - t0)
+    e = float(np.median(eval_times))
+    print(f"evaluation ({cfg.population_size} genomes x {cfg.trials} trials): first call {eval_first:.2f} s "
+          f"(compiling every width); warm median {e * 1e3:.1f} ms over {len(eval_times)} calls (min "
+          f"{min(eval_times) * 1e3:.1f}); mean fitness {float(fitness.mean()):.4f}")
+
+    hcfg = cfg_lib.load(None, [f"seed={args.seed}", "objective=hybrid"])
+    hybrid = objectives.make(hcfg)
+    n = hcfg.novelty
+    # a full archive: 1000 behaviour vectors in [0, 1]^3, the ring's head mid-way
+    archive = hybrid.init(cfg.population_size)
+    archive = archive.replace(entries=jax.random.uniform(jax.random.key(args.seed), archive.entries.shape),
+                              size=jnp.int32(n.archive_size), head=jnp.int32(n.archive_size // 2),
+                              added=jnp.int32(n.archive_size))
+
+    def step():
+        return jax.block_until_ready(hybrid.score(fitness, behaviour, archive))
+
+    t0 = time.perf_counter()
+    _, after, m = step()
+    nov_first = time.perf_counter() - t0
+    nov_times = []
+    for _ in range(500):
+        t0 = time.perf_counter()
+        step()
+        nov_times.append(time.perf_counter() - t0)
+    t = float(np.median(nov_times))
+    print(f"novelty step (k {n.k}, rho {n.rho}, archive {int(after.size)}/{n.archive_size} full, threshold "
+          f"{n.threshold}): first call {nov_first:.2f} s (compiling); warm median {t * 1e3:.3f} ms over "
+          f"{len(nov_times)} calls (min {min(nov_times) * 1e3:.3f}); mean novelty {float(m['mean_novelty']):.4f}, "
+          f"{int(m['archive_added'])} admitted, score sd {float(m['score_std']):.4f}")
+    print(f"novelty: {t * 1e3:.3f} ms/generation (ratio {t / e:.4f} vs evaluation)")
+
+
 BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
-           "generation": bench_generation, "learning": bench_learning, "hyperneat": bench_hyperneat}
+           "generation": bench_generation, "learning": bench_learning, "hyperneat": bench_hyperneat,
+           "novelty": bench_novelty}
 
 
 def main(argv=None) -> None:
