@@ -193,4 +193,9 @@ def test_sigkill_then_resume_keeps_the_archive(runs, tmp_path):
     _, _, a, _ = run_lib.restore(runs["run_dir"])
     _, _, b, _ = run_lib.restore(run_dir)
     _assert_same_tree(a, b)
-    assert _strip(_rows(run_dir)) == _strip(_rows(runs["run_dir"]))
+    # kx.train splits the episode lanes over one XLA device per core (kx.runtime), this process over
+    # one: the lane-steps executed, so live_fraction, differ; the live steps and all else do not
+    got, want = _strip(_rows(run_dir)), _strip(_rows(runs["run_dir"]))
+    diff = [(i, k, r[k], w[k]) for i, (r, w) in enumerate(zip(got, want, strict=True)) for k in r
+            if r[k] != w[k] and k != "live_fraction"]
+    assert not diff, diff[:5]
