@@ -19,6 +19,11 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``hyperneat``: seconds per generation of HyperNEAT and of NEAT (3v2, 150 x 30) on the same start
   states in one run, split into building the policies (the substrates), evaluation, evolution and
   validation.
+* ``novelty``: the novelty hybrid's generation step (k-NN over the population and a full archive,
+  archive update, hybrid score) against evaluating the population on 30 trials.
+* ``transfer``: for NEAT and HyperNEAT over 5 seeds, the first-generation champion of a 4v3, 5v3 and 6v4
+  run seeded with a 3v2 run's final population against that of a fresh run, on the same held-out
+  test states of the target.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -626,9 +631,88 @@ def bench_novelty(args) -> None:
     print(f"novelty: {t * 1e3:.3f} ms/generation (ratio {t / e:.4f} vs evaluation)")
 
 
+def bench_transfer(args) -> None:
+    """Transferred against fresh populations at the start of each target task, for NEAT and HyperNEAT.
+
+    For each of ``--seeds`` seeds: the method's default 3v2 config (150 genomes, 20 generations of 30
+    trials, ``--objective``) trains a source run in a temporary run directory; then in each target task
+    (4v3, 5v3, 6v4) two runs of the target config with the same seed play their first generation: one
+    seeded with the source's whole final population (``transfer.source``, the default seeding), one
+    fresh. Each first-generation champion (the fittest on the generation's 30 training trials, the
+    run's validated champion after one generation) plays the same ``--test-trials`` held-out test
+    states of the target task (the test stream of seed 2026), and so does the population's mean
+    training fitness. Same start states, same evaluation budget, same stopping point for both arms."""
+    import pathlib
+    import tempfile
+
+    import numpy as np
+
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+    from kx.evolve import streams
+    from kx.evolve.encoding import stack
+    from kx.sim import env
+
+    seeds = list(range(args.seeds))
+    methods = {"NEAT": "neat", "HyperNEAT": "hyperneat"}
+    tasks = ("4v3", "5v3", "6v4")
+    extra = ["gif=false", f"objective={args.objective}"]
+    keys = streams.test(LEARNING_TEST_SEED)
+    print(f"transfer: sources 3v2 (20 generations, 150 x 30, objective {args.objective}), seeds "
+          f"{seeds[0]}..{seeds[-1]}; first-generation champions of transferred and fresh target runs on "
+          f"{args.test_trials} test states of each target", flush=True)
+    res = {(m, t, arm): [] for m in methods for t in tasks for arm in ("transfer", "fresh")}
+    mean_first = {k: [] for k in res}
+    t_all = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="kx-bench-transfer-") as tmp:
+        for name, method in methods.items():
+            test_starts = {}
+            for seed in seeds:
+                src = pathlib.Path(tmp) / f"{method}-{seed}"
+                t0 = time.perf_counter()
+                row = run_lib.train(cfg_lib.load(f"configs/{method}_3v2.py", [*extra, f"seed={seed}"]), src,
+                                    log=lambda s: None)
+                print(f"{name} seed {seed}: source 3v2 best validation {row['best_validation']:.4f} "
+                      f"({time.perf_counter() - t0:.0f} s)", flush=True)
+                for task in tasks:
+                    for arm in ("transfer", "fresh"):
+                        over = [*extra, f"seed={seed}", "generations=1"]
+                        if arm == "transfer":
+                            over.append(f"transfer.source={src}")
+                        trainer = run_lib.Trainer(cfg_lib.load(f"configs/{method}_{task}.py", over))
+                        if task not in test_starts:
+                            test_starts[task] = env.reset_batch(keys.starts, args.test_trials, trainer.exp.sim_params,
+                                                                trainer.exp.sim)
+                        result = trainer.step(trainer.init())
+                        champ = result.state.champion
+                        f = float(trainer.evaluate(stack([champ]), test_starts[task], keys.eval).fitness.mean())
+                        res[(name, task, arm)].append(f)
+                        mean_first[(name, task, arm)].append(result.row["mean_fitness"])
+                        del trainer, result
+                print(f"{name} seed {seed}: " + "; ".join(
+                    f"{t} transferred {res[(name, t, 'transfer')][-1]:.4f} fresh {res[(name, t, 'fresh')][-1]:.4f}"
+                    for t in tasks), flush=True)
+    print("first-generation champion on the target's test states, mean (sd) over seeds; the population's mean "
+          "training fitness in that generation:")
+    ratios = []
+    for name in methods:
+        for task in tasks:
+            a, b = np.array(res[(name, task, "transfer")]), np.array(res[(name, task, "fresh")])
+            ma, mb = np.mean(mean_first[(name, task, "transfer")]), np.mean(mean_first[(name, task, "fresh")])
+            sd = lambda v: v.std(ddof=1) if v.size > 1 else 0.0  # noqa: E731
+            wins = int(np.sum(a > b))
+            print(f"  {name} {task}: transferred {a.mean():.4f} ({sd(a):.4f}), fresh {b.mean():.4f} ({sd(b):.4f}), "
+                  f"ratio {a.mean() / max(b.mean(), 1e-9):.2f}, transferred better in {wins}/{a.size} seeds; "
+                  f"population mean {ma:.4f} vs {mb:.4f}")
+            ratios.append((a.mean(), b.mean()))
+    print(f"{time.perf_counter() - t_all:.0f} s in all (compilation included)")
+    ta, fr = np.mean([r[0] for r in ratios]), np.mean([r[1] for r in ratios])
+    print(f"transfer: {ta:.4f} fitness (ratio {ta / max(fr, 1e-9):.2f} vs fresh)")
+
+
 BENCHES = {"sim": bench_sim, "neat_generation": bench_neat_generation, "neat_xor": bench_neat_xor,
            "generation": bench_generation, "learning": bench_learning, "hyperneat": bench_hyperneat,
-           "novelty": bench_novelty}
+           "novelty": bench_novelty, "transfer": bench_transfer}
 
 
 def main(argv=None) -> None:
@@ -646,11 +730,15 @@ def main(argv=None) -> None:
     p.add_argument("--devices", type=int, default=0,
                    help="neat_xor: devices the runs are dealt out to (0: all; kx.runtime makes one per CPU core)")
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
-    p.add_argument("--seeds", type=int, default=10, help="learning: seeds 0..N-1 of each learner")
+    p.add_argument("--seeds", type=int, default=None,
+                   help="learning, transfer: seeds 0..N-1 of each learner (default 10 for learning, 5 for transfer)")
+    p.add_argument("--objective", default="fitness", help="transfer: the objective of the source and target runs")
     p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation, hyperneat: first generations left out (they compile)")
     args = p.parse_args(argv)
+    if args.seeds is None:
+        args.seeds = 5 if args.name == "transfer" else 10
     runtime.setup()
     BENCHES[args.name](args)
 

@@ -200,7 +200,9 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert "trials: allowed an integer, got '2.5'" in _err(capsys, w + ["--config.trials", "2.5"])
     assert "task:" in _err(capsys, w + ["--config.task=9v2"])
     assert "method: allowed one of ('neat', 'hyperneat', 'cma_es'" in _err(capsys, w + ["--config.method=nope"])
-    assert "objective: allowed one of ('fitness',)" in _err(capsys, w + ["--config.objective=novelty"])
+    assert "objective: allowed one of ('fitness', 'hybrid')" in _err(capsys, w + ["--config.objective=novelty"])
+    assert "novelty.k: allowed an integer" in _err(capsys, w + ["--config.objective=hybrid", "--config.novelty.k=0"])
+    assert "transfer.seeding: allowed one of" in _err(capsys, w + ["--config.transfer.seeding=best"])
     assert "layout:" in _err(capsys, w + ["--config.layout=bev"])
     assert "neat.add_node_prob" in _err(capsys, w + ["--config.neat.add_node_prob=1.5"])
     assert "neat.max_add_links: allowed an integer in [0, population_size" in _err(

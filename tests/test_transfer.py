@@ -173,6 +173,18 @@ def test_target_run_records_its_source_and_resumes(sources, tmp_path):
     assert got == 3
 
 
+def test_novelty_archive_starts_empty_in_the_target(tmp_path):
+    """Behaviours of two tasks are not comparable: a hybrid source's archive stays behind."""
+    src_dir = tmp_path / "src"
+    run_lib.train(_config("neat", "3v2", "generations=1", "objective=hybrid"), src_dir, log=lambda s: None)
+    _, _, src_state, _ = run_lib.restore(src_dir)
+    assert int(src_state.objective.size) > 0
+    trainer = run_lib.Trainer(_target("neat", src_dir, "4v3", "objective=hybrid"))
+    state = trainer.init()
+    assert int(state.objective.size) == 0 and not np.any(np.asarray(state.objective.entries))
+    assert _leaves_equal(state.learner.population, src_state.learner.population)
+
+
 def _refused(cfg, tmp_path, *needles):
     run_dir = tmp_path / "refused"
     with pytest.raises(ConfigError) as e:

@@ -22,6 +22,7 @@ import time
 from typing import Any, Callable
 
 import jax
+import numpy as np
 from flax import struct
 
 #: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta)
@@ -140,6 +141,10 @@ def restore(run_dir: pathlib.Path, template: RunState, method: str, step: int | 
         if errs:
             raise RunError(f"checkpoint {step} in {ckpt_dir} holds invalid genotypes ({len(errs)} problems; the "
                            f"first: {errs[0]}): damaged, or written by a kx with another genome layout")
+    # orbax hands back arrays committed to a device, a fresh run's are not: as they are, the first
+    # generation after a resume would compile every program again
+    state = jax.tree.map(lambda a: a if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key)
+                         else jax.numpy.asarray(np.asarray(a)), state)
     return step, state, meta
 
 
