@@ -81,6 +81,7 @@ def test_population_carries_over_and_keeps_its_source_fitness(sources, method):
     assert np.float32(np.clip(f.mean(), f.min(), f.max())) == np.float32(src_row["mean_fitness"])
 
 
+@pytest.mark.slow  # a full-layout run compiles its own programs (about 60 s); Algorithm 1 itself: test_neat_transfer.py
 def test_full_layout_population_mapped_by_algorithm_1(tmp_path):
     """A full-layout 3v2 population (13 inputs, 3 outputs) seeds a 4v3 run (19 inputs, 4 outputs) through
     Algorithm 1 (kx.neat.transfer, tested on its own in test_neat_transfer.py), and the target plays on."""
