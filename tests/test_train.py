@@ -32,7 +32,9 @@ COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_
           "--config.checkpoint_every=1", "--config.keep_checkpoints=2", "--config.validation_trials=40"]
 METHODS = {
     "neat": ["--config", "configs/neat_3v2.py", "--config.population_size=20", *COMMON],
-    "hyperneat": ["--config", "configs/hyperneat_3v2.py", "--config.population_size=12", *COMMON],
+    # HyperNEAT's run selects on the novelty hybrid: its kill-and-resume test then covers the archive too
+    "hyperneat": ["--config", "configs/hyperneat_3v2.py", "--config.population_size=12", "--config.objective=hybrid",
+                  *COMMON],
     "cma_es": ["--config", "configs/cma_es_3v2.py", "--config.population_size=8", *COMMON],
 }
 NEAT_LEARNERS = ("neat", "hyperneat")  # NEAT's own metrics and genome checks
@@ -97,13 +99,17 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     rows = _rows(run_dir)
     trainer = run_lib.Trainer(_cfg(run_dir))
     assert [int(r["generation"]) for r in rows] == list(range(GENERATIONS))
-    assert list(rows[0]) == list(report.csv_fields(trainer.encoding))
+    assert list(rows[0]) == list(report.csv_fields(trainer.encoding, trainer.objective))
     best = [float(r["best_fitness"]) for r in rows]
     so_far = [float(r["best_so_far"]) for r in rows]
     assert so_far == list(np.maximum.accumulate(np.float32(best)).astype(float))
     for r in rows:
         assert 0.0 <= float(r["mean_fitness"]) <= float(r["best_fitness"]) <= 1.0
-        assert float(r["best_score"]) == float(r["best_fitness"])  # the fitness objective: score is fitness
+        if cfg["objective"] == "fitness":  # the score is the fitness
+            assert float(r["best_score"]) == float(r["best_fitness"])
+        else:  # the hybrid's score: rho * normalised fitness + (1 - rho) * normalised novelty, in [0, 1]
+            assert 0.0 <= float(r["mean_score"]) <= float(r["best_score"]) <= 1.0 + 1e-6  # 0.4 + 0.6 in float32
+            assert int(r["archive_size"]) >= int(r["archive_added"]) >= 0
         assert 0.0 < float(r["live_fraction"]) <= 1.0
         for k in trainer.encoding.metric_fields:
             assert r[k] != "", k
