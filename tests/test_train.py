@@ -152,7 +152,13 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     assert ("species" if method in NEAT_LEARNERS else "sigma") in lines[-1]
 
 
+@pytest.mark.slow  # ~85 s; the default suite runs it on HyperNEAT's hybrid run (test_train_hyperneat.py)
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
+    sigkill_then_resume(trained, tmp_path)
+
+
+def sigkill_then_resume(trained, tmp_path):
+    """A run killed mid-way and resumed from checkpoint 2 ends bit for bit where ``trained`` ends."""
     reference, _, method = trained
     run_dir = tmp_path / "killed"
     # far more generations than the reference: the run cannot end before the kill, however fast the machine
