@@ -181,6 +181,7 @@ def test_same_outputs_with_new_inputs_at_zero_hand_built():
     _same_outputs(HAND, mapped)
 
 
+@pytest.mark.slow  # two NEAT generation steps compile (about 50 s cold); the default suite: the hand-built cases
 def test_evolved_population_maps_and_keeps_going():
     state = evolved()
     src = jax.tree.map(np.asarray, state.population)
