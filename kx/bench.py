@@ -560,6 +560,19 @@ def bench_learning(args) -> None:
     print(f"learning: {neat:.4f} fitness (ratio {neat / cma:.2f} vs cma_es)")
 
 
+def _first_and_warm(fn, repeats: int):
+    """``(first result, seconds of the first call, seconds of each of ``repeats`` warm calls)``."""
+    t0 = time.perf_counter()
+    out = fn()
+    first = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return out, first, times
+
+
 def bench_novelty(args) -> None:
     """Milliseconds of the hybrid objective's generation step (SPEC section 4; :mod:`kx.novelty`): the
     novelty of 150 behaviour vectors against the rest of the population and a full archive of 1000 (the
@@ -590,14 +603,7 @@ def bench_novelty(args) -> None:
         stats = trainer.evaluate(population, starts, keys.eval)
         return jax.block_until_ready((stats.fitness.mean(axis=1), stats.behaviour.mean(axis=2)))
 
-    t0 = time.perf_counter()
-    fitness, behaviour = evaluate()
-    eval_first = time.perf_counter() - t0
-    eval_times = []
-    for _ in range(max(args.repeats, 5)):
-        t0 = time.perf_counter()
-        evaluate()
-        eval_times.append(time.perf_counter() - t0)
+    (fitness, behaviour), eval_first, eval_times = _first_and_warm(evaluate, max(args.repeats, 5))
     e = float(np.median(eval_times))
     print(f"evaluation ({cfg.population_size} genomes x {cfg.trials} trials): first call {eval_first:.2f} s "
           f"(compiling every width); warm median {e * 1e3:.1f} ms over {len(eval_times)} calls (min "
@@ -615,14 +621,7 @@ def bench_novelty(args) -> None:
     def step():
         return jax.block_until_ready(hybrid.score(fitness, behaviour, archive))
 
-    t0 = time.perf_counter()
-    _, after, m = step()
-    nov_first = time.perf_counter() - t0
-    nov_times = []
-    for _ in range(500):
-        t0 = time.perf_counter()
-        step()
-        nov_times.append(time.perf_counter() - t0)
+    (_, after, m), nov_first, nov_times = _first_and_warm(step, 500)
     t = float(np.median(nov_times))
     print(f"novelty step (k {n.k}, rho {n.rho}, archive {int(after.size)}/{n.archive_size} full, threshold "
           f"{n.threshold}): first call {nov_first:.2f} s (compiling); warm median {t * 1e3:.3f} ms over "

@@ -114,19 +114,8 @@ def allocate(share: jax.Array, eligible: jax.Array, total: int, cap: jax.Array) 
 
 def init(key: jax.Array, params: NEATParams, config: NEATConfig) -> NEATState:
     """The first population: every genome fully connected, weights at random; speciated."""
-    p, s = config.population_size, config.species_capacity
-    pop = jax.vmap(lambda k: gn.initial_genome(k, config, params))(jax.random.split(key, p))
-    reps = _take(pop, jnp.zeros((s,), I32))
-    threshold = jnp.asarray(params.compat_threshold, F32)
-    species, alive, founded, _ = speciate(pop, reps, jnp.zeros((s,), bool), threshold, params)
-    uid = jnp.where(founded, jnp.cumsum(founded) - 1, -1).astype(I32)
-    return NEATState(
-        population=pop, species=species, species_alive=alive, species_uid=uid,
-        species_best=jnp.full((s,), -jnp.inf, F32), species_improved=jnp.zeros((s,), I32),
-        threshold=jnp.asarray(params.compat_threshold, F32),
-        next_node_id=jnp.asarray(config.n_fixed, I32), next_innov=jnp.asarray(config.n_initial_conns, I32),
-        next_species_uid=jnp.sum(founded, dtype=I32), generation=jnp.zeros((), I32),
-        best_genome=_take(pop, 0), best_fitness=jnp.asarray(-jnp.inf, F32))
+    pop = jax.vmap(lambda k: gn.initial_genome(k, config, params))(jax.random.split(key, config.population_size))
+    return init_from(pop, config.n_fixed, config.n_initial_conns, params.compat_threshold, params, config)
 
 
 def init_from(population: Genome, next_node_id: jax.Array, next_innov: jax.Array, threshold: jax.Array,
