@@ -24,9 +24,7 @@ import pathlib
 import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from kx import runtime  # noqa: E402
+from kx import runtime
 
 DIMS = ("passes", "dispersion", "ball centre")
 K_NN, THRESHOLD = 15, 0.03

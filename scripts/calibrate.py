@@ -13,12 +13,9 @@ from __future__ import annotations
 import argparse
 import datetime
 import pathlib
-import sys
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from kx import runtime  # noqa: E402
+from kx import runtime
 
 TASKS = ("3v2", "4v3", "5v3", "6v4")
 

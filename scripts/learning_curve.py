@@ -14,14 +14,11 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from kx import runtime  # noqa: E402
+from kx import runtime
 
 
 def main(argv=None) -> None:

@@ -11,14 +11,10 @@ from __future__ import annotations
 import argparse
 import collections
 import glob
-import pathlib
 import re
-import sys
 import tempfile
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from kx import runtime  # noqa: E402
+from kx import runtime
 
 
 def main(argv=None) -> None:

@@ -13,6 +13,7 @@ out of range with a message that names the field and what it allows; each method
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import importlib.util
 import json
 import pathlib
@@ -102,6 +103,49 @@ def _field(cfg, name: str):
     return node, True
 
 
+def _start_from(method: str, task=None) -> str:
+    """Where a config of ``method`` starts: its shipped config file (of ``task`` if there is one, else of
+    3v2), or :func:`base_config`."""
+    for name in (f"{method}_{task}.py", f"{method}_3v2.py"):
+        if (CONFIG_DIR / name).is_file():
+            return f"start from configs/{name} (--config configs/{name})"
+    return f"start from kx.evolve.config.base_config({method!r})"
+
+
+def _section_owner(field: str) -> str | None:
+    """The method whose config section ``field`` lies in (``"hyperneat.image"`` -> ``"hyperneat"``)."""
+    head = field.split(".")[0]
+    for m in encodings.names():
+        if "." in field and encodings.get(m).section == head:
+            return m
+    return None
+
+
+def close_fields(field: str, known) -> str:
+    """The fields of ``known`` closest to the unknown ``field`` (difflib; a section's fields are matched
+    by their last part too: ``neat.add_node_prb``), or, when none is close, the top-level fields and
+    sections."""
+    known = sorted(known)
+    matches = difflib.get_close_matches(field, known, n=5, cutoff=0.6)
+    if not matches and "." in field:
+        head, _, leaf = field.rpartition(".")
+        inside = {f.rpartition(".")[2]: f for f in known if f.startswith(head + ".")}
+        matches = [inside[m] for m in difflib.get_close_matches(leaf, list(inside), n=5, cutoff=0.6)]
+    if matches:
+        return f"close matches: {', '.join(matches)}"
+    tops = sorted({f.split(".")[0] + (".*" if "." in f else "") for f in known})
+    return f"no close match; the fields and sections are: {', '.join(tops)}"
+
+
+def unknown_field(field: str, known, method: str | None = None, task=None) -> str:
+    """What to say of the unknown config field ``field``: the config file to start from when it lies in
+    the section of another method than ``method``, else its close matches (:func:`close_fields`)."""
+    owner = _section_owner(field)
+    if owner is not None and owner != method:
+        return f"the {field.split('.')[0]}.* fields belong to method {owner!r}; to run it, {_start_from(owner, task)}"
+    return close_fields(field, known)
+
+
 _KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a string", tuple: "a tuple"}
 
 
@@ -118,7 +162,9 @@ def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections
         field, text = item.split("=", 1)
         value, ok = _field(cfg, field)
         if not ok or isinstance(value, ml_collections.ConfigDict):
-            raise ConfigError(f"{field}: no such config field; the fields are: {', '.join(_fields(cfg))}")
+            method = cfg.get("method")
+            raise ConfigError(f"{field}: no such config field; "
+                              f"{unknown_field(field, _fields(cfg), method, cfg.get('task'))}")
         argv.append(f"--config.{field}={text}")
     if len(argv) == 1:
         return cfg
@@ -187,16 +233,22 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
         raise ConfigError(f"config: expected an ml_collections.ConfigDict, got {type(cfg).__name__}")
     method = cfg.get("method")
     _need(isinstance(method, str) and method in encodings.names(), "method", f"one of {encodings.names()}", method)
+    cls = encodings.get(method)
+    others = {encodings.get(m).section for m in encodings.names()} - {cls.section}
+    theirs = sorted(k for k in cfg.keys() if k in others)
+    if cls.section not in cfg or theirs:
+        instead = f", not the {theirs[0]!r} one" if theirs else ""
+        raise ConfigError(f"method: {method!r} needs its own config section ({cls.section}.*){instead}; "
+                          f"{_start_from(method, cfg.get('task'))}")
     expected = _fields(base_config(method))
     unknown = sorted(set(_fields(cfg)) - set(expected))
     missing = sorted(set(expected) - set(_fields(cfg)))
     if unknown:
-        raise ConfigError(f"{unknown[0]}: no such config field of method {method!r}; the fields are: "
-                          f"{', '.join(expected)}")
+        raise ConfigError(f"{unknown[0]}: no such config field of method {method!r}; "
+                          f"{unknown_field(unknown[0], expected, method, cfg.get('task'))}")
     if missing:
         raise ConfigError(f"{missing[0]}: missing from the config (start config files from "
                           f"kx.evolve.config.base_config({method!r}))")
-    cls = encodings.get(method)
     _need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
           cfg.objective)
     from kx.evolve import transfer
@@ -267,8 +319,10 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
     for field, value in flatten(d).items():
         if field not in known:
             section = any(f.startswith(field + ".") for f in known)
-            raise ConfigError(f"{field}: {'a section, not a value' if section else 'not a field of this kx configs'}"
-                              f" (the fields are: {', '.join(sorted(known))})")
+            if section:
+                raise ConfigError(f"{field}: a section, not a value (its fields: "
+                                  f"{', '.join(sorted(f for f in known if f.startswith(field + '.')))})")
+            raise ConfigError(f"{field}: not a field of this kx configs ({unknown_field(field, known, method)})")
         parent, _, leaf = field.rpartition(".")
         node = _field(cfg, parent)[0] if parent else cfg
         if isinstance(node[leaf], tuple) and isinstance(value, list):  # JSON has no tuples

@@ -10,13 +10,13 @@ number of players, so a CPPN evolved in 3v2 plays 4v3, 5v3 and 6v4 as it is (``k
 
 Config section ``hyperneat``: every :class:`~kx.neat.types.NEATParams` field (the CPPN rates), the
 CPPN's ``activations`` (the set new hidden nodes draw from) and ``output_activation``, its capacity
-(``max_hidden``, ``extra_conns``, ``extra_genes``, ``species_capacity``, ``max_add_links``, as in the
-``neat`` section, except that a ``max_add_links`` above ``population_size`` acts as
-``population_size``), and the substrate and policy: ``resolution`` (must equal ``sim.field_size``),
-``distance_input``, ``image`` (``"authors"`` or ``"paper"``), ``decision`` (``"cells"`` or
-``"literal"``) and ``substrate_activation`` (the substrate's output nodes); docs/hyperneat.md gives the
-defaults and the measurements behind them. The run's ``layout`` is
-``"bev"``.
+(``max_hidden``, ``extra_conns``, ``extra_genes``, ``species_capacity``, ``max_add_links``, bounded as
+in the ``neat`` section, except that ``max_add_links = 0``, the default, means ``min(40,
+population_size)``: the preset's 40 for 150 CPPNs, see :mod:`kx.hyperneat.presets`), and the substrate
+and policy: ``resolution`` (must equal ``sim.field_size``), ``distance_input``, ``image``
+(``"authors"`` or ``"paper"``), ``decision`` (``"cells"`` or ``"literal"``) and
+``substrate_activation`` (the substrate's output nodes); docs/hyperneat.md gives the defaults and the
+measurements behind them. The run's ``layout`` is ``"bev"``.
 """
 
 from __future__ import annotations
@@ -30,7 +30,15 @@ import numpy as np
 
 from kx.evolve.config import ConfigError
 from kx.evolve.encoding import register
-from kx.evolve.neat_encoding import NEATEncoding, _int, _need, check_capacity, learner, neat_params_fields
+from kx.evolve.neat_encoding import (
+    NEATEncoding,
+    _int,
+    _need,
+    check_add_links,
+    check_capacity,
+    learner,
+    neat_params_fields,
+)
 from kx.neat.activations import ACTIVATIONS
 from kx.neat.types import NEATError
 
@@ -53,7 +61,7 @@ class HyperNEATEncoding(NEATEncoding):
         c.update(activations=tuple(ncfg.activation_options), output_activation=ncfg.output_activation,
                  max_hidden=ncfg.n_hidden, species_capacity=ncfg.species_capacity,
                  extra_conns=ncfg.max_conns - ncfg.n_initial_conns, extra_genes=ncfg.genes - ncfg.n_initial_conns,
-                 max_add_links=ncfg.max_add_links, resolution=20, distance_input=True, image="authors",
+                 max_add_links=0, resolution=20, distance_input=True, image="authors",
                  decision="cells", substrate_activation="bipolar_sigmoid")
         return ml_collections.ConfigDict(c)
 
@@ -69,7 +77,6 @@ class HyperNEATEncoding(NEATEncoding):
         self.layout = cfg.layout
         self.population_size = cfg.population_size
         n = dict(cfg.hyperneat)
-        check_capacity(n, "hyperneat", cfg.population_size)
         acts = n["activations"]
         _need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
                                                                        for a in acts)
@@ -87,6 +94,9 @@ class HyperNEATEncoding(NEATEncoding):
         self.substrate = Substrate(resolution=n["resolution"], distance_input=n["distance_input"],
                                    weight_range=float(n["weight_range"]))
         self.image, self.decision, self.substrate_activation = n["image"], n["decision"], n["substrate_activation"]
+        check_capacity(n, "hyperneat", cfg.population_size, (self.substrate.n_inputs + 1) * CPPN_OUTPUTS)
+        check_add_links(n["max_add_links"], "hyperneat", cfg.population_size,
+                        f"min({presets.MAX_ADD_LINKS}, population_size)")
         opts = tuple(dict.fromkeys(tuple(acts) + (n["output_activation"],)))
         try:
             self.neat_config, _ = presets.cppn(
@@ -96,8 +106,8 @@ class HyperNEATEncoding(NEATEncoding):
                 max_genes=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_genes"],
                 species_capacity=n["species_capacity"], activation_options=opts,
                 hidden_activation=acts[0], output_activation=n["output_activation"],
-                # the preset's 40 suits 150 CPPNs; a smaller population carries out at most all of its add-links
-                max_add_links=min(n["max_add_links"], cfg.population_size))
+                # 0: the preset's 40, which suits 150 CPPNs, or a smaller population's every add-link
+                max_add_links=n["max_add_links"] or min(presets.MAX_ADD_LINKS, cfg.population_size))
         except NEATError as e:
             msg = str(e).replace("NEATParams.", "hyperneat.").replace("NEATConfig.", "hyperneat.")
             raise ConfigError(msg) from None

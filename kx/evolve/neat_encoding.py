@@ -7,10 +7,11 @@ the evaluator per lane (they are small: a few hundred numbers per genome).
 
 The config section ``neat`` holds every :class:`~kx.neat.types.NEATParams` field (the rates of Table 2
 in the reading chosen by :func:`default_config`, see :mod:`kx.neat.presets`), the activations, and the
-genome capacity: ``max_hidden`` hidden nodes, ``extra_conns`` connection columns and ``extra_genes``
-genes per genome beyond the initial fully connected ones, ``species_capacity`` species slots and
-``max_add_links`` (add-link mutations per generation; 0: ``max(8, population_size // 8)``; those
-drawn beyond it are skipped and counted in metrics.csv's ``link_capped``).
+genome capacity: ``max_hidden`` hidden nodes (at most :data:`MAX_HIDDEN`), ``extra_conns`` connection
+columns and ``extra_genes`` genes per genome beyond the initial fully connected ones, ``species_capacity``
+species slots and ``max_add_links`` (add-link mutations per generation, at most ``population_size``; 0:
+``max(8, population_size // 8)``; those drawn beyond it are skipped and counted in metrics.csv's
+``link_capped``).
 """
 
 from __future__ import annotations
@@ -49,15 +50,39 @@ def _int(v) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
-def check_capacity(n: dict, section: str, population_size: int) -> None:
-    """The genome-capacity fields of a NEAT learner's config section ``n`` (``neat``, ``hyperneat``)."""
-    for f in ("max_hidden", "species_capacity", "extra_conns", "extra_genes", "max_add_links"):
+# The most hidden-node slots a genome may have. Each lane of an evaluation carries its network's
+# ``[max_hidden + outputs, inputs + 1 + max_hidden]`` weights (about 0.3 MB at 256: 1.3 GB over the
+# default 150 x 30 lanes) and the network's forward pass is unrolled over hidden-node pairs (256 gives
+# 33,000 terms to compile), so beyond this a run does not fit in memory or compile time; the shipped
+# configs use 16.
+MAX_HIDDEN = 256
+# The most connection columns (kx.neat.types.NEATConfig refuses a larger max_conns).
+MAX_CONNS = 65535
+
+
+def check_capacity(n: dict, section: str, population_size: int, n_initial: int) -> None:
+    """The genome-capacity fields of a NEAT learner's config section ``n`` (``neat``, ``hyperneat``);
+    ``n_initial`` is the initial genome's links (``(inputs + 1) * outputs``)."""
+    for f in ("species_capacity", "extra_genes", "max_add_links"):
         low = 1 if f == "species_capacity" else 0
         _need(_int(n[f]) and n[f] >= low, f"{section}.{f}", f"an integer >= {low}", n[f])
+    _need(_int(n["max_hidden"]) and 0 <= n["max_hidden"] <= MAX_HIDDEN, f"{section}.max_hidden",
+          f"an integer in [0, {MAX_HIDDEN}]", n["max_hidden"])
+    top = MAX_CONNS - n_initial
+    _need(_int(n["extra_conns"]) and 0 <= n["extra_conns"] <= top, f"{section}.extra_conns",
+          f"an integer in [0, {top}] ({MAX_CONNS} connection columns less the initial genome's {n_initial})",
+          n["extra_conns"])
     _need(n["species_capacity"] <= population_size, f"{section}.species_capacity",
           f"at most population_size ({population_size})", n["species_capacity"])
     _need(n["extra_genes"] <= n["extra_conns"], f"{section}.extra_genes",
           f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
+
+
+def check_add_links(value, section: str, population_size: int, zero: str) -> None:
+    """``<section>.max_add_links``: 0 (``zero``, the method's own cap) or at most the population (a
+    generation carries out at most one add-link per offspring)."""
+    _need(_int(value) and 0 <= value <= population_size, f"{section}.max_add_links",
+          f"an integer in [0, population_size = {population_size}] (0: {zero})", value)
 
 
 def resize(genomes, source, target):
@@ -118,13 +143,11 @@ class NEATEncoding(Encoding):
     def __init__(self, cfg, sim, sim_params):
         super().__init__(cfg, sim, sim_params)
         n = dict(cfg.neat)
-        check_capacity(n, "neat", cfg.population_size)
-        _need(n["max_add_links"] <= cfg.population_size, "neat.max_add_links",
-              f"an integer in [0, population_size = {cfg.population_size}] (0: max(8, population_size // 8))",
-              n["max_add_links"])
+        n_in, n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
+        check_capacity(n, "neat", cfg.population_size, (n_in + 1) * n_out)
+        check_add_links(n["max_add_links"], "neat", cfg.population_size, "max(8, population_size // 8)")
         for f in ("output_activation", "hidden_activation"):
             _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"neat.{f}", f"one of {sorted(ACTIVATIONS)}", n[f])
-        n_in, n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
         try:
             self.neat_config, _ = presets.keepaway(
                 n_inputs=n_in, n_outputs=n_out, population_size=cfg.population_size,
@@ -255,4 +278,6 @@ class NEATEncoding(Encoding):
     def draw(self, genotype, path: pathlib.Path):
         from kx.neat.draw import draw_genome
 
-        return draw_genome(jax.device_get(genotype), self.neat_config, path)
+        return draw_genome(jax.device_get(genotype), self.neat_config, path,
+                           input_names=list(observe.input_names(self.layout, self.sim)),
+                           output_names=list(observe.output_names(self.layout, self.sim)))

@@ -30,7 +30,14 @@ def _layers(g, config: NEATConfig) -> dict[int, int]:
 def draw_genome(genome, config: NEATConfig, path: str | pathlib.Path, input_names=None, output_names=None,
                 title: str | None = None) -> pathlib.Path:
     """Write ``genome`` (one genome) as a PNG: inputs at the bottom, outputs at the top, hidden nodes by
-    depth; links coloured by sign (blue positive, red negative), width by |weight|, disabled dashed."""
+    depth; links coloured by sign (blue positive, red negative), width by |weight|, disabled dashed.
+    ``input_names``/``output_names`` (at least ``n_inputs``/``n_outputs`` of them; e.g. the keep-away
+    features of :func:`kx.sim.observe.input_names`) are written beside the nodes, which then carry
+    their index; without them the nodes read ``in<i>``/``out<k>``."""
+    for names, n, what in ((input_names, config.n_inputs, "input_names"),
+                           (output_names, config.n_outputs, "output_names")):
+        if names is not None and len(names) < n:
+            raise ValueError(f"draw_genome: {what} has {len(names)} names, the network {n} {what[:-6]}s")
     import matplotlib
 
     matplotlib.use("Agg")
@@ -59,16 +66,22 @@ def draw_genome(genome, config: NEATConfig, path: str | pathlib.Path, input_name
     colours = {INPUT: "#dddddd", BIAS: "#fff2a8", HIDDEN: "#cfe8cf", OUTPUT: "#cfd8f0"}
     for i, (x, y) in pos.items():
         ax.scatter([x], [y], s=380, color=colours[kind[i]], edgecolor="black", zorder=2)
+        name = None  # a given input's or output's name, written beside its node (below / above)
         if kind[i] == INPUT:
-            label = input_names[i] if input_names else f"in{i}"
+            label, name = (str(i), input_names[i]) if input_names else (f"in{i}", None)
         elif kind[i] == BIAS:
             label = "bias"
         elif kind[i] == OUTPUT:
             k = i - config.first_output
-            label = output_names[k] if output_names else f"out{k}"
+            label, name = (f"o{k}", output_names[k]) if output_names else (f"out{k}", None)
         else:
             label = f"{i}\n{act[i]}" if len(config.activation_options) > 1 else str(i)
         ax.annotate(label, (x, y), ha="center", va="center", fontsize=7, zorder=3)
+        if name is not None:
+            below = kind[i] == INPUT
+            ax.annotate(name, (x, y), xytext=(0, -12 if below else 12), textcoords="offset points",
+                        ha="center", va="top" if below else "bottom", rotation=90 if below else 0, fontsize=7,
+                        zorder=3)
     hidden = sum(1 for k in kind.values() if k == HIDDEN)
     enabled = int(np.sum(g.conn_valid & g.conn_enabled))
     ax.set_title(title or f"{hidden} hidden nodes, {enabled} enabled links of {int(g.conn_valid.sum())}")

@@ -100,6 +100,21 @@ def _features(state: State, config: KeepAwayConfig, n_mates: int, n_takers: int)
     return jnp.stack(feats)
 
 
+def _feature_names(n_mates: int, n_takers: int) -> tuple[str, ...]:
+    """The names of :func:`_features`' rows, in its order: K1 is the holder, K2, K3, ... its teammates
+    and T1, T2, ... the takers by distance from it, C the centre; ``min dist(K2,T)`` is the distance
+    from K2 to its nearest taker, ``min ang(K2,K1,T)`` the smallest angle at K1 between K2 and a taker."""
+    mates, takers = range(2, n_mates + 2), range(1, n_takers + 1)
+    names = ["dist(K1,C)"]
+    names += [f"dist(K1,K{i})" for i in mates]
+    names += [f"dist(K1,T{j})" for j in takers]
+    names += [f"dist(K{i},C)" for i in mates]
+    names += [f"dist(T{j},C)" for j in takers]
+    names += [f"min dist(K{i},T)" for i in mates]
+    names += [f"min ang(K{i},K1,T)" for i in mates]
+    return tuple(names)
+
+
 def full_layout_map(source: KeepAwayConfig, target: KeepAwayConfig) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """Where each ``full``-layout input and output of task ``source`` lies in the layout of the larger
     task ``target``: ``(input_map, output_map)``, ``input_map[i]`` the target index of source input
@@ -138,6 +153,27 @@ def full_obs(state: State, config: KeepAwayConfig) -> jax.Array:
     """Stone et al.'s ``4K + 2T - 3`` inputs, in the order of :func:`fixed_obs` generalised to every
     teammate and taker (sorted by distance from the holder)."""
     return _features(state, config, config.n_keepers - 1, config.n_takers)
+
+
+def fixed_names() -> tuple[str, ...]:
+    """The names of :func:`fixed_obs`' 13 inputs, in its order (``dist(K1,C)``, ``dist(K1,K2)``, ...)."""
+    return _feature_names(2, 2)
+
+
+def full_names(config: KeepAwayConfig) -> tuple[str, ...]:
+    """The names of :func:`full_obs`' ``4K + 2T - 3`` inputs for ``config``'s team sizes, in its order."""
+    return _feature_names(config.n_keepers - 1, config.n_takers)
+
+
+def input_names(layout: str, config: KeepAwayConfig) -> tuple[str, ...]:
+    """The names of the ``fixed`` or ``full`` layout's inputs."""
+    return {"fixed": fixed_names, "full": lambda: full_names(config)}[layout]()
+
+
+def output_names(layout: str, config: KeepAwayConfig) -> tuple[str, ...]:
+    """The names of the ``fixed`` or ``full`` layout's outputs, as :func:`decode_ranked` reads them:
+    hold, then pass to K2, K3, ... (the teammates by distance from the holder)."""
+    return ("hold",) + tuple(f"pass K{i}" for i in range(2, n_outputs(layout, config) + 1))
 
 
 def decode_ranked(outputs: jax.Array, state: State, config: KeepAwayConfig) -> jax.Array:
