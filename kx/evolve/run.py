@@ -320,18 +320,20 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
     log(f"validation states ({cfg.validation_trials}): "
         + ", ".join(f"{k} policy {v:.4f}" for k, v in baselines.items()))
     title = f"kx {cfg.task} {cfg.method}, seed {cfg.seed}"
-    t_run = time.perf_counter()
-    done_here = 0
+    done_here, t_first = 0, None
     row = rows[-1] if rows else None
     for g in range(start, cfg.generations):
         result = trainer.step(state)
+        t_step = time.perf_counter()
         state, row = result.state, result.row
         rows.append(row)
         report.append_row(metrics_path, row, trainer.fields)
         done_here += 1
-        # ETA from the generations run in this process after the first (which compiles)
-        per_gen = ((time.perf_counter() - t_run - float(rows[start]["generation_seconds"])) / (done_here - 1)
-                   if done_here > 1 else None)
+        # ETA from this process's own clock, over its generations after the first (which compiles), each
+        # with its checkpoint and plot: never from metrics.csv, which may hold fewer rows (deleted, cut)
+        if done_here == 1:
+            t_first = t_step
+        per_gen = (t_step - t_first) / (done_here - 1) if done_here > 1 else None
         log(report.progress_line(row, cfg.generations, None if per_gen is None else per_gen * (cfg.generations - g - 1),
                                  enc))
         last = g + 1 == cfg.generations
