@@ -159,3 +159,48 @@ def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, 
             seen.add(c)
     later = [c for compiles in per_generation[2:] for c in compiles]
     assert all("_advance" in name or "_compact" in name for name, _ in later), later
+
+
+def _compiles_during(fn):
+    """``(result, [(program, shapes)] compiled while fn ran)``."""
+    handler = _Compiles()
+    logger = logging.getLogger("jax._src.interpreters.pxla")
+    logger.addHandler(handler)
+    old = jax.config.jax_log_compiles
+    jax.config.update("jax_log_compiles", True)
+    try:
+        return fn(), handler.seen
+    finally:
+        jax.config.update("jax_log_compiles", old)
+        logger.removeHandler(handler)
+
+
+@pytest.mark.parametrize("objective", ["fitness", "hybrid"])
+@pytest.mark.parametrize("method", ["neat", "hyperneat", "cma_es"])
+def test_a_second_run_in_the_same_process_compiles_nothing(method, objective):
+    """Programs belong to the process, keyed by the static shapes of a run, not to a Trainer: a second
+    Trainer of the same method, task, shapes and objective compiles nothing at all, and a run with
+    another seed (traced, like every per-run value) compiles only evaluator batch widths that its
+    episodes reach for the first time."""
+    cfg = cfg_lib.base_config(method)
+    size = {"neat": 12, "hyperneat": 10, "cma_es": 8}[method]
+    cfg.update(dict(population_size=size, trials=4, validation_trials=12, generations=2, objective=objective))
+    if method != "cma_es":
+        cfg[method].species_capacity = 4
+        cfg[method].target_species = 3
+    cfg.sim.max_iterations = 150
+
+    def run(seed):
+        c = ml_collections.ConfigDict(cfg.to_dict())
+        c.seed = seed
+        state, rows = run_lib.evolve_in_memory(run_lib.Trainer(c))
+        return np.asarray(jax.tree.leaves(state)[0]), rows
+
+    (first_leaf, rows1), first = _compiles_during(lambda: run(0))
+    assert first, "the log of compilations caught nothing: the test would pass vacuously"
+    (again_leaf, rows2), again = _compiles_during(lambda: run(0))
+    assert again == [], f"a second {method}/{objective} run compiled {[name for name, _ in again]}"
+    np.testing.assert_array_equal(first_leaf, again_leaf)  # and it is the same run
+    assert [r["best_fitness"] for r in rows1] == [r["best_fitness"] for r in rows2]
+    _, other = _compiles_during(lambda: run(1))
+    assert all("_advance" in name or "_compact" in name for name, _ in other), other

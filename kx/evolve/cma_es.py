@@ -58,6 +58,33 @@ def _unflatten(theta: jax.Array, n_in: int, n_out: int, hidden: int) -> list[jax
 
 
 @functools.lru_cache(maxsize=None)
+def _es(population_size: int, dim: int):
+    """evosax's CMA-ES of one shape, one instance per process (its methods read only the shape)."""
+    from evosax.algorithms import CMA_ES
+
+    return CMA_ES(population_size=population_size, solution=jnp.zeros(dim))
+
+
+# One compiled program per shape, shared by every run of the process: the step size and every other
+# parameter are traced (evosax's params pytree), so a second run of the same shape compiles nothing.
+# evosax leaves some fields weakly typed; strong types keep one program per function (and equal to
+# what a restored checkpoint holds).
+@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
+def _es_init(key, es_params, mean, std, *, population_size: int, dim: int):
+    return _strong(_es(population_size, dim).init(key, mean, es_params).replace(std=std))
+
+
+@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
+def _es_ask(key, state, es_params, *, population_size: int, dim: int):
+    return _strong(_es(population_size, dim).ask(key, state, es_params))
+
+
+@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
+def _es_tell(key, population, score, state, es_params, *, population_size: int, dim: int):
+    return _strong(_es(population_size, dim).tell(key, population, -score, state, es_params))
+
+
+@functools.lru_cache(maxsize=None)
 def network_policy(sim: KeepAwayConfig, layout: str, hidden: int) -> Policy:
     """The fixed network of flat parameter vectors, as a shared-table policy: ``params.table [G, D]``,
     ``params.index [*B]`` the row of each lane."""
@@ -107,29 +134,28 @@ class CMAESEncoding(Encoding):
         if cfg.population_size < 4:
             raise ConfigError(f"population_size: allowed at least 4 for cma_es, got {cfg.population_size}")
         try:
-            from evosax.algorithms import CMA_ES
+            import evosax.algorithms  # noqa: F401
         except ImportError as e:  # pragma: no cover - evosax is a dependency
             raise ConfigError("method: cma_es needs evosax (pip install evosax==0.3.2)") from e
         self.hidden = c.hidden
         self.n_in, self.n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
         self.dim = n_params(self.n_in, self.n_out, self.hidden)
-        self.es = CMA_ES(population_size=cfg.population_size, solution=jnp.zeros(self.dim))
-        self.es_params = self.es.default_params.replace(std_init=jnp.asarray(c.sigma_init, jnp.float32))
-        # evosax leaves some fields weakly typed; strong types keep one compiled program per function
-        # (and equal to what a restored checkpoint holds)
-        self._init = jax.jit(lambda key: _strong(self.es.init(key, jnp.zeros(self.dim), self.es_params)))
-        self._ask = jax.jit(lambda key, state: _strong(self.es.ask(key, state, self.es_params)))
-        self._tell = jax.jit(lambda key, pop, score, state: _strong(
-            self.es.tell(key, pop, -score, state, self.es_params)))
+        self.es = _es(cfg.population_size, self.dim)
+        self.es_params = _strong(self.es.default_params.replace(std_init=jnp.asarray(c.sigma_init, jnp.float32)))
+        self._shape = {"population_size": cfg.population_size, "dim": self.dim}
+
+    def _init_at(self, key, mean, std):
+        return _es_init(key, self.es_params, jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32),
+                        **self._shape)
 
     def init(self, key):
-        return self._init(key)
+        return self._init_at(key, jnp.zeros(self.dim), self.es_params.std_init)
 
     def ask(self, key, state):
-        return self._ask(key, state)
+        return _es_ask(key, state, self.es_params, **self._shape)
 
     def tell(self, key, population, score, fitness, state):
-        state, _ = self._tell(key, population, jnp.asarray(score, jnp.float32), state)
+        state, _ = _es_tell(key, population, jnp.asarray(score, jnp.float32), state, self.es_params, **self._shape)
         return state, {"sigma": state.std, "mean_norm": jnp.linalg.norm(state.mean)}
 
     def policy_for(self, sim):
@@ -157,10 +183,7 @@ class CMAESEncoding(Encoding):
         """The distribution starts at the source's mean (``champion``: at its validated champion) with the
         source's step size; its covariance and evolution paths start afresh, as in a new run."""
         mean = state.learner.mean if seeding == "population" else state.champion
-        if not hasattr(self, "_init_at"):
-            self._init_at = jax.jit(lambda k, m, std: _strong(
-                self.es.init(k, m, self.es_params).replace(std=std)))
-        return self._init_at(key, jnp.asarray(mean, jnp.float32), jnp.asarray(state.learner.std, jnp.float32))
+        return self._init_at(key, mean, state.learner.std)
 
     def check(self, state, champion):
         errs = []

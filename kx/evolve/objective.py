@@ -58,6 +58,10 @@ Fitness = Objective
 BEHAVIOUR_DIM = 3
 
 
+# One compiled program per shape (and ``k``, a static field of the params), shared by every run.
+_novelty_step = jax.jit(nv.step)
+
+
 class Hybrid(Objective):
     """Selection on ``rho`` x normalised fitness + ``(1 - rho)`` x normalised novelty (SPEC section 4);
     the state is the behaviour archive (:class:`kx.novelty.Archive`, ``archive_size`` x 3)."""
@@ -68,7 +72,7 @@ class Hybrid(Objective):
     def __init__(self, k: int, rho: float, archive_size: int, threshold: float):
         self.k, self.rho, self.archive_size, self.threshold = k, rho, archive_size, threshold
         self.params = nv.NoveltyParams(rho=float(rho), threshold=float(threshold), k=int(k))
-        self._step = None  # jitted once, on first use
+        self._step = _novelty_step  # the module's: shared by every instance
 
     def init(self, population_size: int) -> nv.Archive:
         del population_size  # the archive's shape is the config's alone
@@ -77,8 +81,6 @@ class Hybrid(Objective):
     def score(self, fitness: jax.Array, behaviour: jax.Array,
               state: nv.Archive) -> tuple[jax.Array, nv.Archive, dict]:
         """``behaviour`` is the run loop's ``[3, P]``."""
-        if self._step is None:
-            self._step = jax.jit(nv.step)
         return self._step(jnp.asarray(fitness, jnp.float32), jnp.asarray(behaviour, jnp.float32).T, state,
                           self.params)
 

@@ -21,8 +21,6 @@ it compiles once and vmaps over seeds.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 
@@ -309,6 +307,15 @@ def validate(config: NEATConfig, params: NEATParams) -> None:
                         f"NEATConfig.species_capacity = {config.species_capacity}")
 
 
+# One compiled program per static config, shared by every NEAT instance of the process: a second run
+# of the same shapes compiles nothing (its seed and parameters are traced).
+_init_jit = jax.jit(init, static_argnames=("config",))
+_tell_jit = jax.jit(tell, static_argnames=("config",))
+_build_jit = jax.jit(build_networks, static_argnames=("config",))
+_init_from_jit = jax.jit(init_from, static_argnames=("config",))
+_seed_copies_jit = jax.jit(seed_copies, static_argnames=("config",))
+
+
 class NEAT:
     """NEAT for one :class:`NEATConfig`, with jitted ``init``/``ask``/``tell`` (evosax's interface)::
 
@@ -317,18 +324,18 @@ class NEAT:
         population, state = neat.ask(k1, state)
         state, metrics = neat.tell(k2, population, fitness, state)
         # or neat.tell(k2, population, score, state, fitness=fitness): see :func:`tell`
+
+    The compiled programs are the module's, keyed by the (hashable, static) config: every instance with
+    an equal config shares them, and parameters, keys and populations are traced arguments.
     """
 
     def __init__(self, config: NEATConfig, params: NEATParams | None = None):
         self.config = config
         self.default_params = params if params is not None else NEATParams()
         validate(config, self.default_params)
-        self._init = jax.jit(functools.partial(init, config=config))
-        self._tell = jax.jit(functools.partial(tell, config=config))
-        self._build = jax.jit(functools.partial(build_networks, config=config))
 
     def init(self, key: jax.Array, params: NEATParams | None = None) -> NEATState:
-        return self._init(key, params or self.default_params)
+        return _init_jit(key, params or self.default_params, config=self.config)
 
     def ask(self, key: jax.Array, state: NEATState, params: NEATParams | None = None):
         return ask(key, state, params or self.default_params, self.config)
@@ -339,25 +346,23 @@ class NEAT:
             if (x is not None or name == "score") and shape != (self.config.population_size,):
                 raise NEATError(f"{name} has shape {shape}: expected ({self.config.population_size},), one value "
                                 "per genome of the population")
-        return self._tell(key, population, score, state, params or self.default_params, fitness=fitness)
+        return _tell_jit(key, population, score, state, params or self.default_params, config=self.config,
+                         fitness=fitness)
 
     def networks(self, population: Genome) -> Network:
-        return self._build(population)
+        return _build_jit(population, config=self.config)
 
     def init_from(self, population: Genome, next_node_id, next_innov, threshold=None,
                   params: NEATParams | None = None) -> NEATState:
         """:func:`init_from` (``threshold`` default: the parameters' ``compat_threshold``)."""
         params = params or self.default_params
         threshold = params.compat_threshold if threshold is None else threshold
-        if not hasattr(self, "_init_from"):
-            self._init_from = jax.jit(functools.partial(init_from, config=self.config))
-        return self._init_from(population, next_node_id, next_innov, threshold, params)
+        return _init_from_jit(population, next_node_id, next_innov, threshold, params, config=self.config)
 
     def seed_copies(self, key, genomes: Genome, next_node_id, next_innov, params: NEATParams | None = None):
         """:func:`seed_copies` with this learner's config."""
         m = jax.tree.leaves(genomes)[0].shape[0]
         if not 1 <= m <= self.config.population_size:
             raise NEATError(f"seed_copies: {m} seed genomes for a population of {self.config.population_size}")
-        if not hasattr(self, "_seed_copies"):
-            self._seed_copies = jax.jit(functools.partial(seed_copies, config=self.config))
-        return self._seed_copies(key, genomes, next_node_id, next_innov, params or self.default_params)
+        return _seed_copies_jit(key, genomes, next_node_id, next_innov, params or self.default_params,
+                                config=self.config)
