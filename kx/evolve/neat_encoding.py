@@ -32,8 +32,8 @@ from kx.neat.algorithm import NEAT
 from kx.neat.types import NEATError, NEATParams
 from kx.sim import observe
 
-NEAT_METRICS = ("n_species", "threshold", "mean_hidden", "mean_links", "champion_hidden", "champion_links",
-                "node_overflow", "link_overflow", "link_exhausted", "link_capped", "species_overflow")
+NEAT_METRICS = ("n_species", "stagnant_species", "threshold", "mean_hidden", "mean_links", "champion_hidden",
+                "champion_links", "node_overflow", "link_overflow", "link_exhausted", "link_capped", "species_overflow")
 
 
 def neat_params_fields(params: NEATParams) -> dict:
@@ -272,8 +272,8 @@ class NEATEncoding(Encoding):
         return f"neat ({self.layout} layout: {c.n_inputs} inputs, {c.n_outputs} outputs)"
 
     def progress(self, row) -> str:
-        return (f"species {int(row['n_species']):2d}  hidden {float(row['mean_hidden']):.2f}"
-                f"  links {float(row['mean_links']):.1f}")
+        return (f"species {int(row['n_species']):2d} ({int(row['stagnant_species'])} stagnant)"
+                f"  hidden {float(row['mean_hidden']):.2f}  links {float(row['mean_links']):.1f}")
 
     def draw(self, genotype, path: pathlib.Path):
         from kx.neat.draw import draw_genome

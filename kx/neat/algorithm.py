@@ -176,13 +176,13 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
     """Select on ``score`` ``[P]`` of the evaluated ``population`` and breed the next generation.
 
     ``score`` is what the learner selects on: explicit fitness sharing, offspring allocation, parent
-    ranking within the survival threshold, elitism, and the species' bests that decide stagnation
-    (``state.species_best`` holds scores). Stagnation counts as selection, so a species whose score
-    keeps improving (a novelty hybrid, say) stays alive even when its task fitness does not.
-    ``fitness`` ``[P]`` (default: ``score``) is the task fitness: it alone decides
-    ``state.best_genome``/``best_fitness`` and every fitness metric (``best_fitness``,
-    ``mean_fitness``, ``median_fitness``; ``champion_hidden``/``champion_links`` describe the fittest
-    genome). With ``fitness=None`` this is the plain NEAT step on ``score``.
+    ranking within the survival threshold and elitism. ``fitness`` ``[P]`` (default: ``score``) is the
+    task fitness: it decides stagnation (``state.species_best`` holds each species' best task fitness,
+    a quantity comparable across generations, where a score normalised per generation, like the
+    novelty hybrid's, is not), ``state.best_genome``/``best_fitness`` and every fitness metric
+    (``best_fitness``, ``mean_fitness``, ``median_fitness``; ``champion_hidden``/``champion_links``
+    describe the fittest genome). Neither the species of the top score nor that of the fittest genome
+    is ever stagnant. With ``fitness=None`` this is the plain NEAT step on ``score``.
 
     In both, non-finite values count as the population's worst finite value. Returns the new state and
     this generation's metrics (scalars and ``[S]`` arrays, about the evaluated population).
@@ -194,14 +194,18 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
     sp = state.species
     k_par, k_mut, k_rep, k_x = jax.random.split(key, 4)
 
-    # Species bookkeeping: improvement and stagnation.
+    # Species bookkeeping: improvement and stagnation, on the task fitness (comparable across
+    # generations; a normalised score is redrawn on [0, 1] every generation, so a record set in it is
+    # rarely beaten again: docs/neat.md, "Stagnation").
     counts = jax.ops.segment_sum(jnp.ones((p,), I32), sp, s)
-    sp_max = jax.ops.segment_max(sc, sp, s)
+    sp_max = jax.ops.segment_max(f, sp, s)
     improved = state.species_alive & (sp_max > state.species_best)
     sp_best = jnp.where(improved, sp_max, state.species_best)
     sp_improved = jnp.where(improved, gen, state.species_improved)
-    top = jnp.argmax(sc)  # the species of the best score is never stagnant
-    stagnant = (gen - sp_improved >= params.stagnation_limit) & (jnp.arange(s) != sp[top])
+    champ = jnp.argmax(f)  # the fittest genome (top, when fitness is the score)
+    top = jnp.argmax(sc)  # the species of the best score and of the fittest genome are never stagnant
+    slots = jnp.arange(s)
+    stagnant = (gen - sp_improved >= params.stagnation_limit) & (slots != sp[top]) & (slots != sp[champ])
     eligible = state.species_alive & (counts > 0) & ~stagnant
 
     # Explicit fitness sharing: a species' share is the sum of its members' f / |species|.
@@ -260,7 +264,6 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
                        jnp.where(sp_over > 0, 1.0 + params.threshold_step, 1.0))
     threshold = jnp.maximum(used_threshold * factor, params.threshold_min)
 
-    champ = jnp.argmax(f)  # the fittest genome (top, when fitness is the score)
     better = f[champ] > state.best_fitness
     best_genome = jax.tree.map(lambda a, b: jnp.where(better, a, b), _take(population, champ), state.best_genome)
     new_state = NEATState(
@@ -284,7 +287,7 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
         "mean_links": jnp.mean(jnp.sum(population.conn_valid & population.conn_enabled, axis=1).astype(F32)),
         "champion_hidden": jnp.sum(population.node_kind[champ] == HIDDEN, dtype=I32),
         "champion_links": jnp.sum(population.conn_valid[champ] & population.conn_enabled[champ], dtype=I32),
-        "stagnant_species": jnp.sum(stagnant & state.species_alive, dtype=I32),
+        "stagnant_species": jnp.sum(stagnant & state.species_alive & (counts > 0), dtype=I32),  # culled now
         "species_sizes": counts,  # [S] by slot
         "species_ids": jnp.where(state.species_alive & (counts > 0), state.species_uid, -1),  # [S] run-wide ids
         "offspring": n_off,

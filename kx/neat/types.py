@@ -304,7 +304,7 @@ class NEATState:
     species: jax.Array  # [P] int32 species slot of each genome
     species_alive: jax.Array  # [S] bool
     species_uid: jax.Array  # [S] int32 id of the species in the slot (unique over the run)
-    species_best: jax.Array  # [S] float32 best score (what tell selects on) the species ever reached
+    species_best: jax.Array  # [S] float32 best task fitness the species ever reached (decides stagnation)
     species_improved: jax.Array  # [S] int32 generation of its last improvement
     threshold: jax.Array  # float32 current compatibility threshold
     next_node_id: jax.Array  # int32
