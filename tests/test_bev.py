@@ -171,11 +171,21 @@ def test_cells_decision_hand_set():
     # holder 2: its own cell's output (0.5 + 1.5: the path (2,4) is now to keeper 0) beats keeper 1's
     s2 = make_state([(2, 2), (5, 2), (2, 6)], [(10, 10), (12, 12)], holder=2)
     assert act(t, s2) == 2
-    # saturation: bipolar_sigmoid(10) == bipolar_sigmoid(20) in float32, a tie: hold
+    # saturation: bipolar_sigmoid(10) == bipolar_sigmoid(20) == 1.0 in float32, yet the decision
+    # compares the sums before the (increasing) activation: keeper 1's 20 beats the holder's 10
     t = _table()
     t["b"][0, cell(2, 2)], t["b"][0, cell(5, 2)] = 10.0, 20.0
-    assert act(t, s) == 0
+    assert float(bev.ACTIVATIONS["bipolar_sigmoid"](jnp.float32(10.0))) == 1.0
+    assert act(t, s) == 1
     assert act(t, s, activation="identity") == 1
+    assert act(t, s, activation="sigmoid") == 1
+    t["b"][0, cell(2, 2)] = 20.0
+    assert act(t, s) == 0  # an exact tie of the sums still goes to hold
+    # a non-monotone activation is compared after it: gaussian(0) = 1 at the holder beats gaussian(0.5)
+    t = _table()
+    t["b"][0, cell(5, 2)] = 0.5
+    assert act(t, s, activation="identity") == 1
+    assert act(t, s, activation="gaussian") == 0
 
 
 def test_literal_decision_hand_set():

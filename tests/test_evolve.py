@@ -25,9 +25,35 @@ def test_neat_policy_acts_on_each_lanes_own_network():
     actions = np.asarray(policy.apply(batch_last, starts, None))
     for i in range(8):
         s_i = jax.tree.map(lambda x: x[..., i], starts)
-        out = nw.activate(jax.tree.map(lambda x: x[i], nets), observe.fixed_obs(s_i, sim), config)
+        x_i = observe.fixed_obs(s_i, sim)[:, None]
+        out = nw.forward(jax.tree.map(lambda x: x[i], nets), x_i, config, pre_activation=True)[:, 0]
         assert actions[i] == int(observe.decode_ranked(out, s_i, sim))
     assert len(set(actions.tolist())) > 1  # different networks, different choices
+
+
+def test_neat_policy_decides_on_the_output_sums_not_on_saturated_sigmoids():
+    """Outputs whose sums are 4 and 5 are both exactly 1.0 after NEAT's sigmoid in float32; the policy
+    compares the sums (the same order in exact arithmetic): the larger acts, exact ties go to hold."""
+    sim, params = KeepAwayConfig.from_task("3v2"), KeepAwayParams()
+    config, _ = presets.keepaway(population_size=8, species_capacity=4)
+    r, n_in1 = config.n_hidden + config.n_outputs, config.n_inputs + 1
+    state = env.reset(jax.random.key(5), params, sim)
+    order = np.asarray(observe.teammate_order(state, sim))  # hold, nearest teammate, next
+
+    def decide(bias):
+        w_in = jnp.zeros((r, n_in1), jnp.float32).at[config.n_hidden:, -1].set(jnp.asarray(bias, jnp.float32))
+        net = nw.Network(w_in=w_in, w_hid=jnp.zeros((r, config.n_hidden), jnp.float32),
+                         act=jnp.full((r,), config.act_id("sigmoid"), jnp.int32))
+        return int(neat_policy(sim, config).apply(net, state, None))
+
+    sat = nw.activate(nw.Network(w_in=jnp.zeros((r, n_in1)).at[config.n_hidden:, -1].set(jnp.array([4.0, 5.0, 0.0])),
+                                 w_hid=jnp.zeros((r, config.n_hidden)), act=jnp.zeros((r,), jnp.int32)),
+                      jnp.zeros((config.n_inputs,)), config)
+    assert float(sat[0]) == float(sat[1]) == 1.0  # saturated: a tie after the activation
+    assert decide([4.0, 5.0, 0.0]) == order[1]  # pass to the nearest teammate
+    assert decide([5.0, 4.0, 0.0]) == order[0]  # hold
+    assert decide([5.0, 5.0, 5.0]) == order[0]  # an exact tie goes to hold
+    assert decide([-1.0, -3.0, 6.0]) == order[2]
 
 
 def test_neat_population_evaluates_through_the_simulator():

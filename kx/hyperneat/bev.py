@@ -39,7 +39,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from kx.neat.activations import ACTIVATIONS
+from kx.neat.activations import ACTIVATIONS, INCREASING
 from kx.sim import observe
 from kx.sim.ops import col, fenced, pick
 from kx.sim.policies import Policy, Shared
@@ -188,10 +188,11 @@ def _genome_rows(index: jax.Array, rows: jax.Array, n: int) -> jax.Array:
 
 
 def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State, config: KeepAwayConfig,
-                   image: str = "paper", activation: str = "bipolar_sigmoid") -> jax.Array:
+                   image: str = "paper", activation: str | None = "bipolar_sigmoid") -> jax.Array:
     """``act(b[o] + sum_i image[i] * w[o, i])`` of each lane's genome ``index [*B]`` at output cells
-    ``rows [R, *B]``, from the sparse image: ``[R, *B]`` float32."""
-    _check(config, image, "cells", activation)
+    ``rows [R, *B]``, from the sparse image: ``[R, *B]`` float32 (``activation=None``: the sums,
+    before any activation)."""
+    _check(config, image, "cells", activation or "identity")
     n = config.field_size**2
     w_flat = table["w"].reshape(-1)
     if w_flat.shape[0] >= 2**31:
@@ -216,7 +217,7 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
         return total
 
     total = fenced(products, wv, total, values)
-    return ACTIVATIONS[activation](total)
+    return total if activation is None else ACTIVATIONS[activation](total)
 
 
 def dense_outputs(w: jax.Array, b: jax.Array, state: State, config: KeepAwayConfig, image: str = "paper",
@@ -227,6 +228,17 @@ def dense_outputs(w: jax.Array, b: jax.Array, state: State, config: KeepAwayConf
     img = observe.bev_obs(state, config, image)  # [N, *B]
     out = jnp.tensordot(w, img, axes=(1, 0), precision=jax.lax.Precision.HIGHEST)
     return ACTIVATIONS[activation](b.reshape(b.shape + (1,) * (img.ndim - 1)) + out)
+
+
+def _ranked_on(activation: str) -> str | None:
+    """What a decision compares for a substrate activation: the pre-activation sums (``None``) when the
+    activation is increasing, so that outputs a float32 activation saturates (a bipolar sigmoid is
+    exactly 1.0 above a sum of about 3.4) do not tie; the activations themselves otherwise."""
+    return None if activation in INCREASING else activation
+
+
+def _act(activation: str | None, x: jax.Array) -> jax.Array:
+    return x if activation is None else ACTIVATIONS[activation](x)
 
 
 def _decide_cells(vals: jax.Array, h: jax.Array, config: KeepAwayConfig) -> jax.Array:
@@ -255,6 +267,9 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         ``literal=True``). It needs all ``N`` outputs, ``N x E`` gathered weights per lane and
         iteration, and is slow (about ``N / K`` times the cost of ``"cells"``' products).
       activation: the substrate's output activation, a name of :data:`kx.neat.activations.ACTIVATIONS`.
+        An increasing one (:data:`kx.neat.activations.INCREASING`) is never computed: the decision
+        compares the outputs' sums before it, which rank the same in exact arithmetic and do not tie
+        where the float32 activation saturates; other activations are compared after it.
 
     ``apply(Shared({"w": [G, N, N], "b": [G, N]}, index [*B]), state, key)`` returns a keeper index per
     lane (the holder's own index holds), also when nobody holds the ball (then keeper 0 stands in for the
@@ -262,15 +277,16 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
     """
     _check(config, image, decision, activation)
     n = config.field_size**2
+    ranked = _ranked_on(activation)
 
     def apply(params: Shared, state: State, key) -> jax.Array:
         h = jnp.maximum(state.holder, 0)
         if decision == "cells":
             kc = state.keeper_x + config.field_size * state.keeper_y  # [K, *B]
-            vals = sparse_outputs(params.table, params.index, kc, state, config, image, activation)
+            vals = sparse_outputs(params.table, params.index, kc, state, config, image, ranked)
             return _decide_cells(vals, h, config)
         rows = jnp.broadcast_to(col(n, h.ndim), (n,) + h.shape)
-        outs = sparse_outputs(params.table, params.index, rows, state, config, image, activation)
+        outs = sparse_outputs(params.table, params.index, rows, state, config, image, ranked)
         return observe.decode_bev(outs, state, config, literal=True)
 
     return Policy(f"bev-{image}-{decision}-{activation}", apply, shared=True)
@@ -284,6 +300,7 @@ def dense_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "
     ``N x N`` weights for ``"literal"``: only for small batches)."""
     _check(config, image, decision, activation)
     w_cells = config.field_size
+    ranked = _ranked_on(activation)
 
     def apply(params: Shared, state: State, key) -> jax.Array:
         h = jnp.maximum(state.holder, 0)
@@ -294,9 +311,9 @@ def dense_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "
             kc = state.keeper_x + w_cells * state.keeper_y  # [K, *B]
             rows = w[params.index[None], kc]  # [K, *B, N]
             out = b[params.index[None], kc] + jnp.sum(rows * img_lm[None], axis=-1)
-            return _decide_cells(ACTIVATIONS[activation](out), h, config)
+            return _decide_cells(_act(ranked, out), h, config)
         out = jnp.einsum("...oi,...i->...o", w[params.index], img_lm, precision=jax.lax.Precision.HIGHEST)
-        out = ACTIVATIONS[activation](jnp.moveaxis(out + b[params.index], -1, 0))  # [N, *B]
+        out = _act(ranked, jnp.moveaxis(out + b[params.index], -1, 0))  # [N, *B]
         return observe.decode_bev(out, state, config, literal=True)
 
     return Policy(f"bev-dense-{image}-{decision}-{activation}", apply, shared=True)

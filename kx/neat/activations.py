@@ -40,6 +40,9 @@ ACTIVATIONS: dict[str, ActivationFn] = {
     "tanh": jnp.tanh,
 }
 
+#: the strictly increasing activations: the largest output is the output with the largest weighted sum
+INCREASING = frozenset({"sigmoid", "identity", "bipolar_sigmoid", "tanh"})
+
 # Plain-Python versions for the reference evaluation in the tests.
 PY_ACTIVATIONS: dict[str, Callable[[float], float]] = {
     "sigmoid": lambda x: 1.0 / (1.0 + math.exp(-4.9 * x)) if x > -100 else 0.0,

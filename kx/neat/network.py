@@ -65,8 +65,14 @@ def build(g: Genome, config: NEATConfig) -> Network:
     return Network(w_in=w_in, w_hid=w_hid, act=act_rows.astype(I32))
 
 
-def forward(net: Network, x: jax.Array, config: NEATConfig) -> jax.Array:
-    """Outputs ``[n_outputs, *B]`` of a network for inputs ``x`` ``[n_inputs, *B]`` (batch-last)."""
+def forward(net: Network, x: jax.Array, config: NEATConfig, pre_activation: bool = False) -> jax.Array:
+    """Outputs ``[n_outputs, *B]`` of a network for inputs ``x`` ``[n_inputs, *B]`` (batch-last).
+
+    ``pre_activation=True``: the output nodes' weighted sums, before their activation (hidden nodes
+    are activated as always). A decision by the largest output reads these when the output activation
+    is increasing (:data:`kx.neat.activations.INCREASING`): in exact arithmetic they rank the outputs
+    the same, and they do not tie where a float32 sigmoid saturates to 1.0 (above a sum of about 3.4
+    for NEAT's steepened sigmoid)."""
     h = config.n_hidden
     opts = config.activation_options
     nb = x.ndim - 1
@@ -87,7 +93,7 @@ def forward(net: Network, x: jax.Array, config: NEATConfig) -> jax.Array:
     out = z[h:]
     for j in range(h):
         out = out + w_hid[h:, j] * hs[j][None]
-    return activations.apply(act[h:], out, opts)
+    return out if pre_activation else activations.apply(act[h:], out, opts)
 
 
 def activate(net: Network, x: jax.Array, config: NEATConfig) -> jax.Array:
