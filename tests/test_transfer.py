@@ -14,9 +14,11 @@ import jax
 import numpy as np
 import pytest
 
+from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
 from kx.evolve import streams, transfer
+from kx.evolve.checkpoint import RunError
 from kx.evolve.config import ConfigError
 from kx.neat.checks import check_population
 from kx.sim import env
@@ -161,7 +163,8 @@ def test_target_run_records_its_source_and_resumes(sources, tmp_path):
     run_lib.train(_target("neat", src_dir, "4v3", "generations=1"), run_dir, log=lambda s: None)
     record = json.loads((run_dir / "config.json").read_text())[cfg_lib.SOURCE_RECORD]
     _, step, src_state, _ = run_lib.restore(src_dir)
-    assert record["path"] == str(src_dir) and record["step"] == step == SOURCE_GENERATIONS
+    assert record["path"] == str(src_dir.resolve()) and record["step"] == step == SOURCE_GENERATIONS
+    assert record["source_objective"] == record["target_objective"] == "fitness"
     assert record["generation"] == SOURCE_GENERATIONS and record["task"] == "3v2" and record["seeding"] == "population"
     assert record["config"] == cfg_lib.read_run_config(src_dir / "config.json").to_dict()
     assert record["digest"] == transfer.digest(src_state) and record["digest"].startswith("sha256:")
@@ -175,6 +178,139 @@ def test_target_run_records_its_source_and_resumes(sources, tmp_path):
     # the target's own checkpoints restore through the fresh-run template
     _, got, _, _ = run_lib.restore(run_dir)
     assert got == 2
+
+
+class _Killed(Exception):
+    """The process killed (a stand-in for SIGKILL)."""
+
+
+def _start_and_kill(cfg, run_dir, monkeypatch, at: str) -> None:
+    """Starts the run of ``cfg`` and kills it before its first checkpoint: as its first generation
+    starts (``at="step"``) or as that generation's checkpoint is written (``at="save"``)."""
+    def killed(*args, **kwargs):
+        raise _Killed(at)
+    with monkeypatch.context() as m:
+        if at == "step":
+            m.setattr(run_lib.Trainer, "step", killed)
+        else:
+            m.setattr(ckpt, "save", killed)
+        with pytest.raises(_Killed):
+            run_lib.train(cfg, run_dir, log=lambda s: None)
+    assert (run_dir / "config.json").is_file() and ckpt.steps(run_dir) == []
+
+
+def _files(run_dir: pathlib.Path) -> dict:
+    """Every file of a run directory and its bytes (the run's lock file aside: it is not the run's)."""
+    return {str(f.relative_to(run_dir)): f.read_bytes() for f in sorted(run_dir.rglob("*"))
+            if f.is_file() and f.name != "run.lock"}
+
+
+def _record(run_dir: pathlib.Path) -> dict:
+    return json.loads((run_dir / "config.json").read_text())[cfg_lib.SOURCE_RECORD]
+
+
+def _resume_source(src_dir: pathlib.Path, generations: int) -> None:
+    cfg = cfg_lib.read_run_config(src_dir / "config.json")
+    cfg.generations = generations
+    run_lib.train(cfg, src_dir, resume=True, log=lambda s: None)
+
+
+def test_record_pins_the_source_before_the_first_generation(tmp_path, monkeypatch):
+    """config.json holds the source's resolved absolute path, its concrete checkpoint step (not -1), the
+    digest of that checkpoint's state and both runs' objectives before the target's first generation runs."""
+    monkeypatch.chdir(tmp_path)
+    run_lib.train(_config("neat", "3v2", "generations=1", "objective=hybrid"), tmp_path / "src", log=lambda s: None)
+    cfg = _target("neat", "src", "4v3")  # relative, the latest checkpoint
+    assert cfg.transfer.step == -1 and cfg.objective == "fitness"
+    run_dir = tmp_path / "target"
+    _start_and_kill(cfg, run_dir, monkeypatch, at="step")
+    record = _record(run_dir)
+    _, step, src_state, _ = run_lib.restore(tmp_path / "src")
+    assert set(record) == set(transfer.RECORD_KEYS)
+    assert record["path"] == str((tmp_path / "src").resolve()) and pathlib.Path(record["path"]).is_absolute()
+    assert record["step"] == step == 1 and record["generation"] == 1
+    assert record["digest"] == transfer.digest(src_state)
+    assert record["source_objective"] == "hybrid" and record["target_objective"] == "fitness"
+    assert record["config"]["objective"] == "hybrid"
+    # the config itself keeps what was asked
+    assert cfg_lib.read_run_config(run_dir / "config.json").transfer.to_dict() == cfg.transfer.to_dict()
+
+
+def test_resume_before_first_checkpoint_refused_after_source_gained_a_checkpoint(tmp_path, monkeypatch):
+    """A target (relative transfer.source, transfer.step=-1) killed before its first checkpoint, resumed
+    after its source gained a checkpoint: the source's owner continued it from checkpoint 1 with a
+    checkpoint every 3 generations, so checkpoint 2, which seeded the target, is set aside and the latest
+    is 3. Resuming the target is refused with the reason, before anything is written; -1 is not resolved
+    again to checkpoint 3."""
+    monkeypatch.chdir(tmp_path)
+    src_dir = tmp_path / "src"
+    run_lib.train(_config("neat", "3v2", "generations=2"), src_dir, log=lambda s: None)
+    cfg = _target("neat", "src", "4v3")
+    run_dir = tmp_path / "target"
+    _start_and_kill(cfg, run_dir, monkeypatch, at="save")  # generation 0 ran, its checkpoint never written
+    record = _record(run_dir)
+    assert record["step"] == 2 and record["path"] == str(src_dir.resolve())
+    scfg = cfg_lib.read_run_config(src_dir / "config.json")
+    scfg.generations, scfg.checkpoint_every = 3, 3
+    run_lib.train(scfg, src_dir, resume=True, step=1, log=lambda s: None)
+    assert ckpt.steps(src_dir) == [1, 3]
+    before = _files(run_dir)
+    with pytest.raises(RunError) as e:
+        run_lib.train(cfg, run_dir, resume=True, log=lambda s: None)
+    msg = str(e.value)
+    for needle in ("--resume", "no checkpoint yet", "transfer_source.step", "recorded checkpoint 2",
+                   str(src_dir.resolve()), "found checkpoints [1, 3]"):
+        assert needle in msg, msg
+    assert _files(run_dir) == before, "refused after writing"
+    assert _record(run_dir) == record
+
+
+def test_resume_before_first_checkpoint_reseeds_from_the_recorded_checkpoint(tmp_path, monkeypatch):
+    """The record is the authority: a target resumed before its first checkpoint reseeds from the recorded
+    absolute path and step (not from a relative transfer.source resolved in another working directory,
+    nor from the newer checkpoint the source has gained) and keeps the record; a source retrained in
+    place (another digest) or gone is refused with the field, what was recorded and what was found."""
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    src_dir = work / "src"
+    run_lib.train(_config("neat", "3v2", "generations=1"), src_dir, log=lambda s: None)
+    cfg = _target("neat", "src", "4v3")
+    run_dir, spare = tmp_path / "target", tmp_path / "spare"
+    _start_and_kill(cfg, run_dir, monkeypatch, at="save")
+    shutil.copytree(run_dir, spare)
+    record = _record(run_dir)
+    _resume_source(src_dir, 2)
+    assert ckpt.steps(src_dir) == [1, 2]
+
+    elsewhere = tmp_path / "elsewhere"  # where "src" names nothing
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    logged = []
+    run_lib.train(cfg, run_dir, resume=True, log=logged.append)
+    assert _record(run_dir) == record
+    assert any(f"from {src_dir.resolve()} checkpoint 1 " in line for line in logged), logged
+    # generation 0 of the resumed target is the one seeded from checkpoint 1, named explicitly
+    explicit = run_lib.Trainer(_target("neat", src_dir.resolve(), "4v3", "transfer.step=1"))
+    want = explicit.step(explicit.init()).state
+    _, got, state, _ = run_lib.restore(run_dir)
+    assert got == 1 and transfer.digest(state) == transfer.digest(want)
+
+    # the source retrained in place (another seed): checkpoint 1 is there, with another state
+    run_lib.train(_config("neat", "3v2", "generations=1", "seed=1"), src_dir, overwrite=True, log=lambda s: None)
+    before = _files(spare)
+    with pytest.raises(RunError) as e:
+        run_lib.train(cfg, spare, resume=True, log=lambda s: None)
+    msg = str(e.value)
+    for needle in ("transfer_source.digest", f"recorded {record['digest']}", "found sha256:",
+                   "seed = 0 recorded, 1 now"):
+        assert needle in msg, msg
+    # the source gone
+    shutil.rmtree(src_dir)
+    with pytest.raises(RunError) as e:
+        run_lib.train(cfg, spare, resume=True, log=lambda s: None)
+    assert "transfer_source.path" in str(e.value) and f"recorded {src_dir.resolve()}" in str(e.value), str(e.value)
+    assert _files(spare) == before, "refused after writing"
 
 
 def test_novelty_archive_starts_empty_in_the_target(tmp_path):

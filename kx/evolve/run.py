@@ -28,7 +28,9 @@ validation states.
 The run directory::
 
     config.json        the resolved config (written atomically); a transferred run adds its source
-                       (transfer_source: path, step, config, digest; kx.evolve.transfer)
+                       (transfer_source: absolute path, step, config, objectives, digest; written before
+                       the first generation, kept on resume, what a resume before the first checkpoint
+                       reseeds from; kx.evolve.transfer)
     metrics.csv        one row per generation: training fitness, the selection score, behaviour, the
                        generation champion's validation score and the best so far, timings, and the
                        encoding's own columns (NEAT: species, genome sizes, overflow counters)
@@ -43,7 +45,6 @@ The run directory::
 from __future__ import annotations
 
 import dataclasses
-import json
 import pathlib
 import shutil
 import time
@@ -111,13 +112,15 @@ class Trainer:
         """Whether the run is seeded from another run's checkpoint (``transfer.source``)."""
         return bool(self.cfg.transfer.source)
 
-    def attach_source(self):
+    def attach_source(self, pinned: dict | None = None):
         """Restores and checks the transfer source (:func:`kx.evolve.transfer.load`; ``ConfigError``
-        with the reason if it cannot seed this run). Returns it, or ``None`` with no transfer."""
+        with the reason if it cannot seed this run). Returns it, or ``None`` with no transfer.
+        ``pinned``: a resumed run's record of its source, which names the source instead of
+        ``transfer.source`` and ``transfer.step`` (``RunError`` if the source no longer matches it)."""
         if self.transfers and self.source is None:
             from kx.evolve import transfer
 
-            self.source = transfer.load(self.cfg, self)
+            self.source = transfer.load(self.cfg, self, pinned)
         return self.source
 
     def init(self) -> RunState:
@@ -266,8 +269,22 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
     enc = trainer.encoding
     if step is not None and not resume:
         raise RunError("--step: only with --resume")
+    # a resumed transferred run's record of its source (written before its first generation) is the
+    # authority: never rewritten, and what the run reseeds from if it has no checkpoint yet
+    saved_record = None
+    if trainer.transfers and resume and (run_dir / "config.json").is_file():
+        from kx.evolve import transfer
+
+        saved_record = transfer.saved_record(run_dir)
     if trainer.transfers and not (resume and ckpt.steps(run_dir)):
-        trainer.attach_source()  # refused with the reason before anything is written
+        if not resume:
+            trainer.attach_source()  # refused with the reason before anything is written
+        elif (run_dir / "config.json").is_file():  # (without, prepare_run_dir refuses: no run to resume)
+            if saved_record is None:
+                raise RunError(f"--resume: {run_dir / 'config.json'} has no record of the source this run started "
+                               f"from ({cfg_lib.SOURCE_RECORD}), so it cannot reseed from the same checkpoint; "
+                               "start it again with --overwrite")
+            trainer.attach_source(saved_record)  # the recorded path and step, or refused with the reason
     prepare_run_dir(run_dir, resume, overwrite)
     metrics_path = run_dir / "metrics.csv"
     state, start = None, 0
@@ -296,12 +313,10 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
             log(f"nothing to do: {start} generations done, {cfg.generations} asked")
     run_dir.mkdir(parents=True, exist_ok=True)
     record = cfg.to_dict()
-    if trainer.source is not None:
+    if saved_record is not None:  # keep the record the run was started with
+        record[cfg_lib.SOURCE_RECORD] = saved_record
+    elif trainer.source is not None:  # resolved path, concrete step and digest, before the first generation
         record[cfg_lib.SOURCE_RECORD] = trainer.source.record()
-    elif resume and trainer.transfers:  # keep the record the run was started with
-        saved_record = json.loads((run_dir / "config.json").read_text()).get(cfg_lib.SOURCE_RECORD)
-        if saved_record is not None:
-            record[cfg_lib.SOURCE_RECORD] = saved_record
     report.write_json(run_dir / "config.json", record)
     rows = report.read_rows(metrics_path, below=start)
     report.write_rows(metrics_path, rows, trainer.fields)  # drops rows of generations after the checkpoint

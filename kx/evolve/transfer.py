@@ -21,9 +21,17 @@ are not comparable.
 checkpoint's population is the offspring bred after its last generation, not yet evaluated, so it is
 evaluated once, in the source task, to rank it.
 
-The target run's ``config.json`` records the source under ``transfer_source``: its path, checkpoint
-step and generation, its config, and :func:`digest` of the restored run state (sha-256 over every
+The target run's ``config.json`` records the source under ``transfer_source`` before its first
+generation runs: the source's resolved absolute path, its concrete checkpoint step (never -1) and
+generation, its config, ``source_objective`` (the source run's ``objective``) beside
+``target_objective`` (this run's), and :func:`digest` of the restored run state (sha-256 over every
 array of it), so that a result can be traced to the exact population it came from.
+
+The record pins the source. A target resumed before its first checkpoint reseeds from the recorded
+path and step (:func:`load` with ``pinned``), not from ``transfer.source`` and ``transfer.step``
+resolved again (a relative path against another working directory, -1 against a source that has
+gained checkpoints since), and refuses, with the field and what was recorded and found, a source that
+no longer matches: the path gone, the recorded checkpoint gone, or another digest.
 """
 
 from __future__ import annotations
@@ -78,6 +86,8 @@ class Source:
     state: Any  # its RunState after ``step`` generations
     digest: str
     seeding: str
+    target_objective: str  # the target run's objective, recorded beside the source's
+
 
     @property
     def encoding(self):
@@ -97,10 +107,34 @@ class Source:
         return np.argsort(-f, kind="stable")
 
     def record(self) -> dict:
-        """What the target's config.json records of its source."""
+        """What the target's config.json records of its source (:data:`RECORD_KEYS`)."""
         return {"path": str(self.run_dir), "step": self.step, "generation": int(self.state.generation),
                 "method": self.cfg.method, "task": self.cfg.task, "seeding": self.seeding,
+                "source_objective": self.cfg.objective, "target_objective": self.target_objective,
                 "config": self.cfg.to_dict(), "digest": self.digest}
+
+
+# the keys of a target's record of its source (config.json's ``transfer_source``)
+RECORD_KEYS = ("path", "step", "generation", "method", "task", "seeding", "source_objective", "target_objective",
+               "config", "digest")
+# the keys that pin the source: what a target resumed before its first checkpoint reseeds from
+PINNED_KEYS = ("path", "step", "digest")
+
+
+def saved_record(run_dir) -> dict | None:
+    """The ``transfer_source`` record of the run in ``run_dir`` (``None``: no config.json, or no record)."""
+    import json
+
+    from kx.evolve.config import SOURCE_RECORD
+
+    path = pathlib.Path(run_dir) / "config.json"
+    if not path.is_file():
+        return None
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
+    return d.get(SOURCE_RECORD) if isinstance(d, dict) else None
 
 
 def _ask_key(seed: int, generation: int):
@@ -116,18 +150,68 @@ def _task_size(task: str) -> tuple[int, int]:
     return c.n_keepers, c.n_takers
 
 
-def load(cfg: ml_collections.ConfigDict, trainer) -> Source:
+def load(cfg: ml_collections.ConfigDict, trainer, pinned: dict | None = None) -> Source:
     """The source of ``cfg.transfer`` restored for the target run of ``trainer``, or :class:`ConfigError`
-    (naming ``transfer.source``, ``transfer.step`` or ``transfer.seeding``) saying why it cannot seed it."""
+    (naming ``transfer.source``, ``transfer.step`` or ``transfer.seeding``) saying why it cannot seed it.
+
+    ``pinned``: the record a resumed target run wrote when it started (config.json's
+    ``transfer_source``). The source is then the recorded path's recorded checkpoint, whatever
+    ``transfer.source`` and ``transfer.step`` resolve to now, and it must have the recorded digest;
+    otherwise :class:`~kx.evolve.checkpoint.RunError` names the record's field and gives what was
+    recorded and what was found."""
+    from kx.evolve.checkpoint import RunError
+
+    check_section(cfg)
+    if not cfg.transfer.source:
+        raise ConfigError("transfer.source: empty (no transfer configured)")
+    if pinned is None:
+        return _load(cfg, trainer, pathlib.Path(cfg.transfer.source).expanduser().resolve(),
+                     None if cfg.transfer.step == -1 else cfg.transfer.step)
+
+    from kx.evolve import checkpoint as ckpt
+    from kx.evolve.config import SOURCE_RECORD
+
+    why = f"--resume: this run has no checkpoint yet and reseeds from the source recorded in its config.json " \
+          f"({SOURCE_RECORD}), which"
+    missing = [k for k in PINNED_KEYS if k not in pinned] if isinstance(pinned, dict) else list(PINNED_KEYS)
+    if missing:
+        raise RunError(f"{why} is incomplete: no {SOURCE_RECORD}.{missing[0]}")
+    path, step = pinned["path"], pinned["step"]
+    if not (isinstance(path, str) and pathlib.Path(path).is_absolute()):
+        raise RunError(f"{why} is not a pinned source: {SOURCE_RECORD}.path: recorded {path!r}, not an absolute path")
+    if not isinstance(step, int) or isinstance(step, bool) or step < 1:
+        raise RunError(f"{why} is not a pinned source: {SOURCE_RECORD}.step: recorded {step!r}, not a checkpoint "
+                       "step >= 1")
+    run_dir = pathlib.Path(path)
+    if not run_dir.is_dir():
+        raise RunError(f"{why} no longer matches: {SOURCE_RECORD}.path: recorded {run_dir}, found no directory there")
+    have = ckpt.steps(run_dir)
+    if step not in have:
+        raise RunError(f"{why} no longer matches: {SOURCE_RECORD}.step: recorded checkpoint {step} of {run_dir}, "
+                       f"found checkpoints {have} (the source has changed since this run started)")
+    try:
+        source = _load(cfg, trainer, run_dir, step)
+    except ConfigError as e:
+        raise RunError(f"{why} no longer seeds it: {e}") from None
+    if source.digest != pinned["digest"]:
+        from kx.evolve.config import identity_mismatch
+
+        recorded_cfg = pinned.get("config")
+        diff = identity_mismatch(recorded_cfg, source.cfg) if isinstance(recorded_cfg, dict) else None
+        diff = diff and diff.replace(" in the checkpoint, ", " recorded, ")
+        raise RunError(f"{why} no longer matches: {SOURCE_RECORD}.digest: recorded {pinned['digest']}, found "
+                       f"{source.digest} in checkpoint {step} of {run_dir} (the source has changed since this run "
+                       f"started{'; its config: ' + diff if diff else ''})")
+    return source
+
+
+def _load(cfg: ml_collections.ConfigDict, trainer, run_dir: pathlib.Path, want: int | None) -> Source:
+    """Checkpoint ``want`` (``None``: the latest) of the source run in ``run_dir`` (absolute), checked."""
     from kx.evolve import config as cfg_lib
     from kx.evolve.checkpoint import RunError
     from kx.evolve.run import Trainer
 
     t = cfg.transfer
-    check_section(cfg)
-    if not t.source:
-        raise ConfigError("transfer.source: empty (no transfer configured)")
-    run_dir = pathlib.Path(t.source).expanduser().absolute()
     if not run_dir.is_dir():
         raise ConfigError(f"transfer.source: {run_dir} is not a directory (the source must be a kx run directory)")
     try:
@@ -150,9 +234,9 @@ def load(cfg: ml_collections.ConfigDict, trainer) -> Source:
     except ConfigError as e:
         raise ConfigError(f"transfer.source: {run_dir}'s config is not valid for this kx ({e})") from None
     try:
-        step, state, _ = source_trainer.restore(run_dir, None if t.step == -1 else t.step)
+        step, state, _ = source_trainer.restore(run_dir, want)
     except RunError as e:
-        field = "transfer.step" if t.step != -1 and f"--step {t.step}" in str(e) else "transfer.source"
+        field = "transfer.step" if want is not None and f"--step {want}" in str(e) else "transfer.source"
         raise ConfigError(f"{field}: {e}") from None
     if t.seeding == "champion" and int(state.champion_generation) < 0:
         raise ConfigError(f"transfer.seeding: 'champion', but checkpoint {step} of {run_dir} has no validated "
@@ -163,7 +247,7 @@ def load(cfg: ml_collections.ConfigDict, trainer) -> Source:
         field = "transfer.seeding" if problems[0].startswith("seeding") else "transfer.source"
         raise ConfigError(f"{field}: checkpoint {step} of {run_dir} cannot seed this run: {problems[0]}{more}")
     return Source(run_dir=run_dir, step=step, cfg=scfg, trainer=source_trainer, state=state, digest=digest(state),
-                  seeding=t.seeding)
+                  seeding=t.seeding, target_objective=cfg.objective)
 
 
 def seed(trainer, source: Source, key) -> Any:
