@@ -8,19 +8,37 @@ CMA-ES, any registered encoding). Here it meets
 ``--trials`` start states of the test stream (:mod:`kx.evolve.streams`), which neither training nor
 validation ever drew, next to the hand-coded baselines on the same states and kick noise. A network
 of the fixed 13/3 layout plays any team size unchanged (zero-shot transfer); a full-layout network fits
-only the team size it was evolved for (refused otherwise). Prints the figures and writes them to
-``RUN_DIR/eval/<task>-<trials>-seed<seed>.json``.
+only the team size it was evolved for (refused otherwise). Prints the figures and writes them
+(atomically) to ``RUN_DIR/eval/<task>-<trials>-seed<seed>.json``: for the champion and each baseline,
+the mean fitness over the trials with its sample sd and 95% confidence interval (Student's t,
+:func:`ci95`), the median, the mean passes and how the episodes ended.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import pathlib
 import sys
 
+import numpy as np
+
 from kx import runtime
+
+
+def ci95(f) -> tuple[float, float] | None:
+    """The 95% confidence interval of the mean of the per-trial fitnesses ``f``: Student's t with
+    ``n - 1`` degrees of freedom around the mean, scaled by its standard error (``scipy.stats``).
+    ``(mean, mean)`` when every trial scored the same; ``None`` for one trial (no interval)."""
+    from scipy import stats
+
+    f = np.asarray(f, np.float64).reshape(-1)
+    if f.size < 2:
+        return None
+    mean, sem = float(f.mean()), float(stats.sem(f))
+    if sem == 0.0:
+        return mean, mean
+    lo, hi = stats.t.interval(0.95, f.size - 1, loc=mean, scale=sem)
+    return float(lo), float(hi)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,9 +73,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
 
-    import numpy as np
-
-    from kx.evolve import streams
+    from kx.evolve import report, streams
     from kx.evolve.encoding import stack
     from kx.sim import env
     from kx.sim import evaluate as ev
@@ -83,8 +99,8 @@ def main(argv: list[str] | None = None) -> int:
         f = np.asarray(s.fitness).reshape(-1)
         reason = np.asarray(s.reason).reshape(-1)
         sd = float(f.std(ddof=1)) if f.size > 1 else 0.0
-        half = 1.96 * sd / math.sqrt(f.size)
-        return {"mean_fitness": float(f.mean()), "sd": sd, "ci95": [float(f.mean() - half), float(f.mean() + half)],
+        ci = ci95(f)
+        return {"mean_fitness": float(f.mean()), "sd": sd, "ci95": None if ci is None else list(ci),
                 "median": float(np.median(f)),
                 "mean_passes": float(np.asarray(s.passes).mean()),
                 "reasons": {r.name.lower(): float(np.mean(reason == r)) for r in Reason if r != Reason.RUNNING}}
@@ -101,17 +117,18 @@ def main(argv: list[str] | None = None) -> int:
             result["baselines"][name] = summary(ev.evaluate(pol, None, starts, target.sim_params, target.sim,
                                                             key=keys.eval))
     c = result["champion"]
+    ci = "none with one trial" if c["ci95"] is None else f"{c['ci95'][0]:.4f}..{c['ci95'][1]:.4f}"
     print(f"validated champion of {run_dir} (checkpoint {step}, trained on {cfg.task}; from generation "
           f"{result['champion_generation']}, {result['champion_validation']:.4f} on its {cfg.validation_trials} "
           f"validation states)")
     print(f"{target.sim.name}, {args.trials} test trials (seed {seed}): mean fitness {c['mean_fitness']:.4f} "
-          f"(sd {c['sd']:.4f}, 95% CI {c['ci95'][0]:.4f}..{c['ci95'][1]:.4f}), median {c['median']:.4f}, "
+          f"(sd {c['sd']:.4f}, 95% CI {ci}), median {c['median']:.4f}, "
           f"passes {c['mean_passes']:.1f}; ended by " + ", ".join(f"{k} {v:.0%}" for k, v in c["reasons"].items()))
     for name, b in result.get("baselines", {}).items():
         print(f"  {name:9s} on the same trials: mean fitness {b['mean_fitness']:.4f} (sd {b['sd']:.4f})")
     out = run_dir / "eval" / f"{target.sim.name}-{args.trials}-seed{seed}.json"
     out.parent.mkdir(exist_ok=True)
-    out.write_text(json.dumps(result, indent=2) + "\n")
+    report.write_json(out, result)  # atomically: a kill leaves the old figures or the new ones
     print(f"written: {out}")
     return 0
 

@@ -11,12 +11,15 @@ generations; ``configs/neat_3v2.py``) into a new run directory under ``runs/``::
     python -m kx.train --workdir runs/small --resume --config.generations=40   # ... and run longer
 
 Overrides name any config field (``--config.seed=3``, ``--config.neat.add_node_prob=0.05``,
-``--config.sim.max_iterations=1000``); they are parsed by ml_collections' ``config_flags``. An unknown
-field or a value out of range is refused before anything runs; so is an existing run directory, unless
-``--resume`` or ``--overwrite``. A resumed run must keep every field but ``generations``,
-``checkpoint_every``, ``keep_checkpoints``, ``gif`` and ``gif_frames``; it ends bit for bit where the
-uninterrupted run would have. ``--resume --step N`` continues from checkpoint N; the later checkpoints
-are moved to ``abandoned/`` in the run directory, never deleted.
+``--config.sim.max_iterations=1000``); they are parsed by ml_collections' ``config_flags``. A true/false
+field may stand alone (``--config.gif`` is ``--config.gif=true``); a value never starts with ``--`` (in
+``--config.gif --resume``, ``--resume`` is an option of its own). An unknown field or a value out of
+range is refused before anything runs; so is an existing run directory, unless ``--resume`` or
+``--overwrite``, and one another process is writing (``run.lock``). A resumed run must keep every field
+but ``generations``, ``checkpoint_every``, ``keep_checkpoints``, ``gif`` and ``gif_frames``; it ends bit
+for bit where the uninterrupted run would have (and with nothing left to do, it writes nothing).
+``--resume --step N`` continues from checkpoint N; the later checkpoints are moved to ``abandoned/`` in
+the run directory, never deleted.
 """
 
 from __future__ import annotations
@@ -42,13 +45,41 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     while i < len(argv):
         a = argv[i]
         if a.startswith("--config."):
-            if "=" not in a and i + 1 < len(argv):  # --config.seed 3
+            # --config.seed 3; but never an option as a value: --config.gif --resume is a bare --config.gif
+            if "=" not in a and i + 1 < len(argv) and not argv[i + 1].startswith("--"):
                 a, i = f"{a}={argv[i + 1]}", i + 1
-            overrides.append(a[len("--config."):])
+            overrides.append(a[len("--config."):])  # "field=value", or a bare "field" (resolve_bare)
         else:
             rest.append(a)
         i += 1
     return p.parse_args(rest), overrides
+
+
+def resolve_bare(cfg, overrides: list[str]) -> list[str]:
+    """Overrides with each bare field (``--config.gif``, no value) resolved against ``cfg``: a true/false
+    field means true; any other field needs a value (``ConfigError`` naming it); a name that is no
+    field is left to :func:`kx.evolve.config.apply_overrides` to refuse."""
+    import ml_collections
+
+    from kx.evolve import config as cfg_lib
+
+    out = []
+    for item in overrides:
+        if "=" in item:
+            out.append(item)
+            continue
+        node, found = cfg, True
+        for part in item.split("."):
+            if isinstance(node, ml_collections.ConfigDict) and part in node:
+                node = node[part]
+            else:
+                found = False
+                break
+        if found and not isinstance(node, ml_collections.ConfigDict) and not isinstance(node, bool):
+            raise cfg_lib.ConfigError(f"--config.{item}: needs a value (--config.{item}=<value>); only a true/false "
+                                      "field may stand alone, and a value never starts with --")
+        out.append(f"{item}=true")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -70,9 +101,12 @@ def main(argv: list[str] | None = None) -> int:
             saved = pathlib.Path(args.workdir) / "config.json"
             if not saved.is_file():
                 raise run_lib.RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
-            cfg = cfg_lib.apply_overrides(cfg_lib.read_run_config(saved), overrides)
+            base = cfg_lib.read_run_config(saved)
+            cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
             cfg.lock()
         else:
+            if any("=" not in o for o in overrides):
+                overrides = resolve_bare(cfg_lib.load(args.config), overrides)
             cfg = cfg_lib.load(args.config, overrides)
         cfg_lib.validate(cfg)
         if args.workdir:
@@ -81,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
             name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
             stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
             workdir = pathlib.Path("runs") / f"{name}-s{cfg.seed}-{stamp}"
+        if workdir.is_dir():  # one that another process is writing (run.lock): refused now, before JAX computes
+            run_lib.RunLock(workdir).check()
         if not args.overwrite:  # refuse an existing run directory now, before JAX starts
             run_lib.prepare_run_dir(workdir, args.resume, False)
     except (cfg_lib.ConfigError, run_lib.RunError) as e:

@@ -7,17 +7,26 @@ A checkpoint ``checkpoints/<n>/`` holds, after ``n`` generations:
 * ``meta``: JSON with the checkpoint format (:data:`FORMAT`), the method (the encoding's name), the
   resolved config, the generation and the figures the preservation policy reads.
 
-orbax writes each checkpoint to a temporary directory and renames it when complete, so a kill leaves
-the whole checkpoint or none. The last ``keep_checkpoints`` are kept, and the one of the generation
-whose champion validated best. :func:`restore` refuses, with the reason, a checkpoint that is missing,
+orbax writes each checkpoint to a temporary directory (``<n>.orbax-checkpoint-tmp-<time>``) and renames
+it when complete, so a kill leaves the whole checkpoint or none, and perhaps the temporary directory:
+never read as a checkpoint, and removed when the run is resumed (:func:`clean_tmp`). The last
+``keep_checkpoints`` are kept, and the one of the generation whose champion validated best.
+:func:`restore` refuses, with the reason, a checkpoint that is missing,
 unreadable, of another format, of another method, of other shapes, or whose genotypes break the
 encoding's invariants.
+
+:class:`RunLock` keeps a run directory to one writer at a time (``run.lock``).
 """
 
 from __future__ import annotations
 
+import datetime
+import fcntl
+import json
+import os
 import pathlib
 import shutil
+import socket
 import time
 from typing import Any, Callable
 
@@ -46,6 +55,144 @@ class RunState:
     best_so_far: jax.Array  # float32 best training fitness so far (-inf before any)
 
 
+#: the lock file of a run directory (:class:`RunLock`)
+LOCK_NAME = "run.lock"
+
+
+class RunLock:
+    """One writer per run directory: ``run.lock`` in it, held with ``fcntl.flock`` by the process that
+    writes the run, and naming that process (pid, host, start time).
+
+    The kernel drops the lock when its process ends, however it ends, so a lock file that a killed run
+    left behind is stale: the next run takes it over, and says whose it was. :meth:`acquire` refuses,
+    with a :class:`RunError` naming the holder's pid and host, a lock another process holds (on this
+    host, or on another that shares the file system, where ``flock`` reaches it). :meth:`release`
+    (or leaving the ``with`` block, also on an exception) removes the file; a directory that
+    :meth:`acquire` created and that is still empty is removed too, so a run refused before it wrote
+    anything leaves nothing behind."""
+
+    def __init__(self, run_dir, log: Callable[[str], None] | None = None):
+        self.run_dir = pathlib.Path(run_dir)
+        self.path = self.run_dir / LOCK_NAME
+        self.log = log if log is not None else (lambda s: None)
+        self._fd: int | None = None
+        self._made_dir = False
+
+    def __enter__(self):
+        return self.acquire()
+
+    def __exit__(self, *exc):
+        self.release()
+        return False
+
+    def check(self) -> None:
+        """Refuses (:class:`RunError`) a lock another process holds now; takes nothing, creates nothing."""
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except FileNotFoundError:
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise RunError(self._held(fd)) from None
+        finally:
+            os.close(fd)  # (drops the lock if it was taken here)
+
+    def acquire(self) -> RunLock:
+        if self._fd is not None:
+            return self
+        if not self.run_dir.is_dir():
+            self.run_dir.mkdir(parents=True)
+            self._made_dir = True
+        try:
+            while True:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    msg = self._held(fd)
+                    os.close(fd)
+                    raise RunError(msg) from None
+                try:  # the holder may have removed the file between our open and our flock: then again
+                    if os.fstat(fd).st_ino == os.stat(self.path).st_ino:
+                        break
+                except FileNotFoundError:
+                    pass
+                os.close(fd)
+        except BaseException:
+            self._remove_made_dir()
+            raise
+        stale = _read_holder(fd)
+        me = {"pid": os.getpid(), "host": socket.gethostname(),
+              "started": datetime.datetime.now().isoformat(timespec="seconds")}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(me) + "\n").encode(), 0)
+        os.fsync(fd)
+        self._fd = fd
+        if stale:
+            self.log(f"{self.path}: the lock of pid {stale.get('pid', '?')} on {stale.get('host', '?')} (since "
+                     f"{stale.get('started', '?')}) was left behind by a process that no longer holds it "
+                     "(killed?): taking it over")
+        return self
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            os.unlink(self.path)  # while still holding it: whoever opens the path next makes a new file
+        except FileNotFoundError:
+            pass
+        os.close(self._fd)
+        self._fd = None
+        self._remove_made_dir()
+
+    def _remove_made_dir(self):
+        if self._made_dir:
+            self._made_dir = False
+            try:
+                self.run_dir.rmdir()  # only if nothing was written into it
+            except OSError:
+                pass
+
+    def _held(self, fd: int) -> str:
+        holder = {}
+        for _ in range(20):  # the holder writes its name just after it takes the lock
+            holder = _read_holder(fd)
+            if holder:
+                break
+            time.sleep(0.05)
+        who = (f"pid {holder.get('pid', '?')} on host {holder.get('host', '?')} (since {holder.get('started', '?')})"
+               if holder else "a process that has not written its pid yet")
+        return (f"{self.run_dir} is being written by another process: {who} holds its lock {self.path}; "
+                "a run directory takes one process at a time: wait for that one to end, or stop it")
+
+
+def _read_holder(fd: int) -> dict:
+    try:
+        d = json.loads(os.pread(fd, 4096, 0).decode() or "{}")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return {}
+    return d if isinstance(d, dict) else {}
+
+
+#: what orbax's temporary checkpoint directories have in their names (``3.orbax-checkpoint-tmp-<time>``)
+TMP_MARK = ".orbax-checkpoint-tmp"
+
+
+def clean_tmp(run_dir: pathlib.Path) -> list[str]:
+    """Removes the temporary directories a kill left in ``checkpoints/`` (orbax's
+    ``*.orbax-checkpoint-tmp*``: a checkpoint being written, never complete); returns their names.
+    Only with the run directory's lock held: a running writer's temporary directory is its checkpoint."""
+    ckpt_dir = pathlib.Path(run_dir) / "checkpoints"
+    if not ckpt_dir.is_dir():
+        return []
+    gone = sorted(p.name for p in ckpt_dir.iterdir() if TMP_MARK in p.name)
+    for name in gone:
+        p = ckpt_dir / name
+        shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
+    return gone
+
+
 def manager(ckpt_dir: pathlib.Path, keep: int, create: bool = True):
     import orbax.checkpoint as ocp
     from orbax.checkpoint import checkpoint_managers as cm
@@ -64,7 +211,10 @@ def steps(run_dir: pathlib.Path) -> list[int]:
     ckpt_dir = pathlib.Path(run_dir).absolute() / "checkpoints"
     if not ckpt_dir.is_dir():
         return []
-    return sorted(manager(ckpt_dir, keep=1_000_000, create=False).all_steps())
+    # orbax reads no temporary directory (``<n>.orbax-checkpoint-tmp-...``) as a step; the names are
+    # checked again here, so that a half-written checkpoint is never offered to resume from
+    complete = {int(p.name) for p in ckpt_dir.iterdir() if p.name.isdigit()}
+    return sorted(s for s in manager(ckpt_dir, keep=1_000_000, create=False).all_steps() if s in complete)
 
 
 def save(mgr, step: int, state: RunState, meta: dict) -> None:

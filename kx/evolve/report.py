@@ -27,11 +27,20 @@ def csv_fields(encoding, objective=None) -> tuple[str, ...]:
 
 
 def write_json(path: pathlib.Path, obj) -> None:
-    """Atomically: a kill leaves the old file or the new one, never half of one."""
+    """Atomically: a temporary file beside ``path``, flushed to disk, then renamed over it (``os.replace``),
+    so a kill or a failure leaves the old file or the new one, never half of one (nor the temporary)."""
     path = pathlib.Path(path)
+    text = json.dumps(obj, indent=2, sort_keys=True) + "\n"  # before anything is written: it may raise
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    try:
+        with tmp.open("w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def read_rows(path: pathlib.Path, below: int) -> list[dict]:

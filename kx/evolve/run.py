@@ -40,6 +40,7 @@ The run directory::
     champion.gif       the validated champion playing the first test state, at the end
     champion.png       a picture of the validated champion (its network), at the end
     abandoned/<time>/  checkpoints set aside by ``--resume --step N`` (never deleted)
+    run.lock           while a process writes the run: its pid and host (kx.evolve.checkpoint.RunLock)
 """
 
 from __future__ import annotations
@@ -58,14 +59,14 @@ import numpy as np
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import report, streams
-from kx.evolve.checkpoint import RunError, RunState
+from kx.evolve.checkpoint import RunError, RunLock, RunState
 from kx.evolve.encoding import stack
 from kx.sim import env
 from kx.sim import evaluate as ev
 from kx.sim.policies import BASELINES
 
-__all__ = ["RunError", "RunState", "Trainer", "GenerationResult", "evolve_in_memory", "train", "prepare_run_dir",
-           "restore"]
+__all__ = ["RunError", "RunLock", "RunState", "Trainer", "GenerationResult", "evolve_in_memory", "train",
+           "prepare_run_dir", "restore"]
 
 
 @dataclasses.dataclass
@@ -233,11 +234,13 @@ def render_champion(trainer: Trainer, genotype, path: pathlib.Path, frames: int)
 
 
 def prepare_run_dir(run_dir: pathlib.Path, resume: bool, overwrite: bool) -> None:
-    """Refuse to touch an existing run unless asked (before any compute)."""
+    """Refuse to touch an existing run unless asked (before any compute). The lock file (``run.lock``)
+    counts for nothing here: :func:`train` calls this holding it, and ``--overwrite`` keeps it."""
     run_dir = pathlib.Path(run_dir)
     if resume and overwrite:
         raise RunError("--resume and --overwrite: choose one")
-    exists = run_dir.exists() and any(run_dir.iterdir()) if run_dir.is_dir() else run_dir.exists()
+    exists = (any(p.name != ckpt.LOCK_NAME for p in run_dir.iterdir()) if run_dir.is_dir()
+              else run_dir.exists())
     if resume:
         if not (run_dir / "config.json").is_file():
             raise RunError(f"--resume: {run_dir} holds no run to resume (no config.json)")
@@ -248,7 +251,12 @@ def prepare_run_dir(run_dir: pathlib.Path, resume: bool, overwrite: bool) -> Non
                            "--overwrite to replace it, or another --workdir")
         if run_dir.is_dir() and not (run_dir / "config.json").is_file():
             raise RunError(f"--overwrite: {run_dir} is not a kx run directory (no config.json); refusing to delete it")
-        shutil.rmtree(run_dir) if run_dir.is_dir() else run_dir.unlink()
+        if not run_dir.is_dir():
+            run_dir.unlink()
+            return
+        for p in run_dir.iterdir():
+            if p.name != ckpt.LOCK_NAME:
+                shutil.rmtree(p) if p.is_dir() and not p.is_symlink() else p.unlink()
 
 
 def restore(run_dir, step: int | None = None):
@@ -263,7 +271,22 @@ def restore(run_dir, step: int | None = None):
 def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume: bool = False,
           overwrite: bool = False, step: int | None = None, log: Callable[[str], None] = print) -> dict:
     """Runs (or resumes, from checkpoint ``step`` or the latest) the experiment of ``cfg`` in
-    ``run_dir``; returns the final metrics row."""
+    ``run_dir``; returns the final metrics row (a resume with nothing to do: the last one, having
+    written nothing).
+
+    One process at a time: the run directory's lock (``run.lock``, :class:`RunLock`) is taken first, so
+    a directory another process is writing is refused (``RunError`` naming its pid) before any compute,
+    and held to the end, released also on an exception; a stale one (its process killed) is taken over."""
+    run_dir = pathlib.Path(run_dir).absolute()  # orbax wants absolute paths
+    if run_dir.exists() and not run_dir.is_dir():  # no lock inside a file: refused, or replaced (--overwrite)
+        return _train(cfg, run_dir, resume=resume, overwrite=overwrite, step=step, log=log)
+    with RunLock(run_dir, log):
+        return _train(cfg, run_dir, resume=resume, overwrite=overwrite, step=step, log=log)
+
+
+def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: bool, overwrite: bool,
+           step: int | None, log: Callable[[str], None]) -> dict:
+    """:func:`train`'s work, with the run directory's lock held."""
     run_dir = pathlib.Path(run_dir).absolute()  # orbax wants absolute paths
     trainer = Trainer(cfg)  # validates the config first
     enc = trainer.encoding
@@ -300,17 +323,25 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
             if diff:
                 raise RunError(f"checkpoint {got} in {run_dir / 'checkpoints'} was written by another config: {diff}")
             start = int(meta["generation"])
+            if start >= cfg.generations:  # the run stays as it is, byte for byte: nothing set aside or rewritten
+                log(f"nothing to do: {start} generations done, {cfg.generations} asked (checkpoint {got} of "
+                    f"{run_dir}); nothing written (--config.generations=N runs it longer)")
+                done_rows = report.read_rows(metrics_path, below=start)
+                return done_rows[-1] if done_rows else None
+        elif step is not None:
+            raise RunError(f"--step {step}: {run_dir} has no checkpoint yet")
+        removed = ckpt.clean_tmp(run_dir)  # a checkpoint a kill interrupted: never complete, never read
+        if removed:
+            log(f"removed {len(removed)} unfinished checkpoint folder(s) left in {run_dir / 'checkpoints'} by a "
+                f"killed run: {', '.join(removed)}")
+        if have:
             if got < have[-1]:
                 moved = ckpt.set_aside_after(run_dir, got)
                 log(f"continuing from checkpoint {got}: the later checkpoints {[s for s in have if s > got]} "
                     f"and the metrics are set aside in {moved}")
             log(f"resuming {run_dir} after generation {start} (best so far {float(state.best_so_far):.4f})")
-        elif step is not None:
-            raise RunError(f"--step {step}: {run_dir} has no checkpoint yet")
         else:
             log(f"resuming {run_dir}: no checkpoint yet, starting again from generation 0")
-        if start >= cfg.generations:
-            log(f"nothing to do: {start} generations done, {cfg.generations} asked")
     run_dir.mkdir(parents=True, exist_ok=True)
     record = cfg.to_dict()
     if saved_record is not None:  # keep the record the run was started with
