@@ -6,7 +6,6 @@ The generation step is stubbed (no evaluator compiles): what is tested is the ru
 The template run directory holds a real checkpoint of a small NEAT run after 2 generations."""
 
 import json
-import os
 import pathlib
 import re
 import shutil
