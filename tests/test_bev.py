@@ -329,13 +329,45 @@ def test_literal_equals_dense():
     np.testing.assert_array_equal(a_fast, a_dense)
 
 
+@functools.partial(jax.jit, static_argnames=("config",))
+def _iteration(table, index, state, word, params, config):
+    """One iteration of one episode: bev_policy's decision for genome ``index``, with the kick noise of
+    the trial whose noise word is ``word``."""
+    action = bev.bev_policy(config).apply(Shared(table, index), state, None)
+    return env.transition(state, action, env.kick_noise(word, state.t, env.noise_limit(params.kick_noise_deg)),
+                          params, config)
+
+
 def test_policy_in_the_evaluator():
+    """The evaluator hands each lane its own genome's row of the shared table: every (genome, trial)
+    equals that episode played alone by a plain loop, one iteration at a time, of bev_policy's decision
+    for that genome, the simulator's transition and the trial's kick noise."""
     from kx.sim import evaluate as ev
 
     config, params = CFG, KeepAwayParams(max_iterations=60)
-    starts = env.reset_batch(jax.random.key(5), 6, params, config)
-    table = random_table(jax.random.key(6), 3, W * W)
-    stats = ev.evaluate(bev.bev_policy(config), table, starts, params, config, key=jax.random.key(1))
-    assert stats.fitness.shape == (3, 6)
+    n_pol, n_trials = 3, 6
+    starts = env.reset_batch(jax.random.key(5), n_trials, params, config)
+    table = random_table(jax.random.key(6), n_pol, W * W)
+    key = jax.random.key(1)
+    stats = jax.tree.map(np.asarray, ev.evaluate(bev.bev_policy(config), table, starts, params, config, key=key))
+    words = np.asarray(env.noise_words(ev.stream_keys(key)[0], jnp.arange(n_trials)))
+    starts = jax.tree.map(np.asarray, starts)  # sliced on the host: eager slices would compile one by one
+    finals = []
+    for g in range(n_pol):
+        for t in range(n_trials):
+            s = jax.tree.map(lambda a: a[..., t], starts)
+            for _ in range(int(params.max_iterations)):
+                if bool(s.done):
+                    break
+                s = jax.tree.map(np.asarray, _iteration(table, np.int32(g), s, words[t], params, config))
+            assert bool(s.done), (g, t)
+            finals.append(s)
+    finals = jax.tree.map(lambda *a: np.stack(a, axis=-1), *finals)  # [.., n_pol * n_trials], genome-major
+    alone = jax.jit(env.episode_stats, static_argnames="config")(finals, params, config=config)
+    for f in ("iterations", "reason", "passes", "fitness"):
+        np.testing.assert_array_equal(np.asarray(getattr(alone, f)).reshape(n_pol, n_trials), getattr(stats, f),
+                                      err_msg=f)
+    # the genomes play differently, so a lane that played another genome's row would show
+    assert len({tuple(row) for row in stats.iterations.tolist()}) == n_pol, stats.iterations
     assert bev.bev_policy(config) is bev.bev_policy(config)  # cached: one compilation per task
     assert bev.bev_policy(config).shared and "bev-paper-cells" in bev.bev_policy(config).name

@@ -63,8 +63,18 @@ def test_neat_population_evaluates_through_the_simulator():
     nets = alg.build_networks(state.population, config)
     starts = env.reset_batch(jax.random.key(3), 5, params, sim)
     stats = ev.evaluate(neat_policy(sim, config), nets, starts, params, sim, key=jax.random.key(4))
-    assert stats.fitness.shape == (6, 5)
-    assert np.all((np.asarray(stats.fitness) > 0) & (np.asarray(stats.fitness) <= 1))
+    # each genome's episodes are its own network's, wherever it sits in the population: the same
+    # population in another order (the same shapes: no new compilation) gives each genome the same
+    # results. Every place gets a genome that plays differently from the one there before, so results
+    # that stayed with the place (or came from another genome's network) would show.
+    perm = np.asarray([3, 4, 5, 0, 1, 2])
+    moved = ev.evaluate(neat_policy(sim, config), jax.tree.map(lambda a: a[perm], nets), starts, params, sim,
+                        key=jax.random.key(4))
+    for f in ("fitness", "iterations", "reason", "passes"):
+        np.testing.assert_array_equal(np.asarray(getattr(moved, f)), np.asarray(getattr(stats, f))[perm], err_msg=f)
+    np.testing.assert_array_equal(np.asarray(moved.behaviour), np.asarray(stats.behaviour)[:, perm])
+    it = np.asarray(stats.iterations)
+    assert all(not np.array_equal(it[perm[i]], it[i]) for i in range(6)), it
 
 
 def test_layout_mismatch_is_refused():

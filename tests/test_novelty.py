@@ -231,23 +231,46 @@ def _hybrid_cfg(**novelty):
 
 
 def test_the_hybrid_objective_scores_the_run_loops_behaviour_without_recompiling():
-    obj = cfg_lib.validate(_hybrid_cfg(k=3, archive_size=50)).objective
+    """The objective, configured from a run config (no default values, so that a field dropped or
+    swapped on the way to kx.novelty shows), against plain numpy: novelty against the archive as it was
+    before the generation, the hybrid of min-max normalised fitness and novelty, the ring of admitted
+    behaviours and the metrics. Generation 0 admits more than the ring holds; later ones are cut by the
+    threshold."""
+    k, rho, threshold, cap, p = 3, 0.7, 0.3, 10, 12
+    obj = cfg_lib.validate(_hybrid_cfg(k=k, rho=rho, threshold=threshold, archive_size=cap)).objective
     assert isinstance(obj, objectives.Hybrid) and obj.name == "hybrid"
-    state = obj.init(12)
-    assert state.entries.shape == (50, 3) and jax.eval_shape(lambda: obj.init(150)).entries.shape == (50, 3)
+    state = obj.init(p)
+    assert state.entries.shape == (cap, 3) and jax.eval_shape(lambda: obj.init(150)).entries.shape == (cap, 3)
+
+    def minmax(x):
+        return (x - x.min()) / (x.max() - x.min()) if x.max() > x.min() else np.zeros_like(x)
+
+    ring, head, size = np.zeros((cap, 3), np.float32), 0, 0
     rng = np.random.default_rng(5)
+    n_admitted = []
     for g in range(3):
-        fit = jnp.asarray(rng.random(12), jnp.float32)
-        beh = jnp.asarray(rng.random((3, 12)), jnp.float32)  # [3, P] as the run loop hands it
-        want = nv.step(fit, beh.T, state, obj.params)
-        score, state, m = obj.score(fit, beh, state)
-        np.testing.assert_allclose(score, want[0], rtol=1e-6, atol=1e-7)
-        np.testing.assert_array_equal(state.entries, want[1].entries)
+        fit = rng.random(p).astype(np.float32)
+        beh = rng.random((3, p)).astype(np.float32)  # [3, P] as the run loop hands it
+        score, state, m = obj.score(jnp.asarray(fit), jnp.asarray(beh), state)
+        nov = _novelty_reference(beh.T, ring[:size], k)  # the archive before this generation
+        want = rho * minmax(fit) + (1 - rho) * minmax(nov)
+        np.testing.assert_allclose(score, want, rtol=1e-5, atol=1e-6)
+        admitted = [i for i in range(p) if nov[i] > threshold]
+        for i in admitted:  # one at a time, in population order, the oldest overwritten once full
+            ring[head] = beh[:, i]
+            head, size = (head + 1) % cap, min(size + 1, cap)
+        np.testing.assert_array_equal(state.entries, ring)
+        assert (int(state.size), int(state.head)) == (size, head)
         assert set(m) == set(obj.metric_fields)
+        assert (int(m["archive_added"]), int(m["archive_size"])) == (len(admitted), size)
+        np.testing.assert_allclose(m["mean_novelty"], nov.mean(), rtol=1e-5)
+        np.testing.assert_allclose(m["champion_novelty"], nov[np.argmax(fit)], rtol=1e-5)
+        np.testing.assert_allclose(m["score_std"], want.std(), rtol=1e-5)
+        n_admitted.append(len(admitted))
         if g == 0:
             compiled = obj._step._cache_size()  # jax shares it among jits of nv.step: count what this adds
     assert obj._step._cache_size() == compiled
-    assert int(state.size) > 0
+    assert n_admitted[0] > cap and all(0 < n < p for n in n_admitted[1:]), n_admitted
 
 
 @pytest.mark.parametrize("field,value,allowed", [

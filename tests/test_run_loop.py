@@ -18,7 +18,8 @@ from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import encoding as encodings
 from kx.evolve import run as run_lib
-from kx.sim import observe, policies
+from kx.evolve import streams
+from kx.sim import env, observe, policies
 
 
 class HillClimber(encodings.Encoding):
@@ -85,8 +86,22 @@ def test_an_encoding_defined_outside_kx_trains_end_to_end(toy, tmp_path, capsys)
         rows = list(csv.DictReader(f))
     assert [int(r["generation"]) for r in rows] == [0, 1, 2, 3]
     assert all(float(r["step_size"]) == 0.5 for r in rows)
-    # the hill climber keeps its parent in the population, so its training best never falls below the
-    # parent's; the parent it breeds from is the population's best by score
+    # the loop hands tell each member's own score: the parent the hill climber breeds from is the
+    # member that plays best on the generation's start states (replayed here with the population in
+    # reverse order: the same shapes, nothing new to compile), and metrics.csv reports their fitness
+    trainer = run_lib.Trainer(cfg)
+    state, replaced = trainer.init(), []
+    for g in range(2):
+        population, _ = trainer.encoding.ask(streams.learner_ask(cfg.seed, g), state.learner)
+        keys = streams.training(cfg.seed, g)
+        starts = env.reset_batch(keys.starts, cfg.trials, trainer.exp.sim_params, trainer.exp.sim)
+        f = np.asarray(trainer.evaluate(population[::-1], starts, keys.eval).fitness.mean(axis=1))[::-1]
+        state = trainer.step(state).state
+        np.testing.assert_array_equal(np.asarray(state.learner["parent"]), np.asarray(population[np.argmax(f)]))
+        assert float(rows[g]["best_fitness"]) == float(f.max())
+        assert float(rows[g]["median_fitness"]) == float(np.median(f))
+        replaced.append(int(np.argmax(f)) != 0)  # a perturbation beat the parent (index 0)
+    assert any(replaced), "the parent was never replaced: the check above would hold for a loop that ignored the score"
     for name in ("config.json", "metrics.csv", "baselines.json", "progress.png", "champion.gif"):
         assert (tmp_path / "toy" / name).is_file(), name
     assert ckpt.steps(tmp_path / "toy") == [2, 4]

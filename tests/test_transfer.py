@@ -318,11 +318,15 @@ def test_novelty_archive_starts_empty_in_the_target(tmp_path):
     src_dir = tmp_path / "src"
     run_lib.train(_config("neat", "3v2", "generations=1", "objective=hybrid"), src_dir, log=lambda s: None)
     _, _, src_state, _ = run_lib.restore(src_dir)
-    assert int(src_state.objective.size) > 0
+    assert int(src_state.objective.size) > 0  # so a carried-over archive would show
     trainer = run_lib.Trainer(_target("neat", src_dir, "4v3", "objective=hybrid"))
     state = trainer.init()
     assert int(state.objective.size) == 0 and not np.any(np.asarray(state.objective.entries))
     assert _leaves_equal(state.learner.population, src_state.learner.population)
+    # the first generation measures novelty against that empty archive: afterwards it holds only the
+    # target's own admissions
+    row = trainer.step(state).row
+    assert row["archive_size"] == row["archive_added"] > 0
 
 
 def _refused(cfg, tmp_path, *needles):
