@@ -54,14 +54,15 @@ def main(argv: list[str] | None = None) -> int:
 
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
+    from kx.evolve.errors import ConfigError, RunError
 
     runtime.setup()  # first: validating the run's config may touch JAX, whose devices are fixed then
     run_dir = pathlib.Path(args.run_dir)
     try:
         if not (run_dir / "config.json").is_file():
-            raise run_lib.RunError(f"{run_dir}: not a kx run directory (no config.json)")
+            raise RunError(f"{run_dir}: not a kx run directory (no config.json)")
         if not 1 <= args.trials <= 1_000_000:
-            raise cfg_lib.ConfigError(f"--trials: allowed an integer in [1, 1000000], got {args.trials}")
+            raise ConfigError(f"--trials: allowed an integer in [1, 1000000], got {args.trials}")
         cfg = cfg_lib.read_run_config(run_dir / "config.json")
         source = cfg_lib.validate(cfg)
         target_cfg = cfg_lib.from_dict(cfg.to_dict())
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
             target_cfg.task = args.task
         target = cfg_lib.validate(target_cfg)
         policy = source.encoding.policy_for(target.sim)  # refuses networks that do not fit the task
-    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+    except (ConfigError, RunError) as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
 
@@ -83,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     trainer = run_lib.Trainer(cfg)
     try:
         step, state, meta = trainer.restore(run_dir, args.step)
-    except run_lib.RunError as e:
+    except RunError as e:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
     if int(state.champion_generation) < 0:

@@ -61,7 +61,7 @@ def resolve_bare(cfg, overrides: list[str]) -> list[str]:
     field is left to :func:`kx.evolve.config.apply_overrides` to refuse."""
     import ml_collections
 
-    from kx.evolve import config as cfg_lib
+    from kx.evolve.errors import ConfigError
 
     out = []
     for item in overrides:
@@ -76,7 +76,7 @@ def resolve_bare(cfg, overrides: list[str]) -> list[str]:
                 found = False
                 break
         if found and not isinstance(node, ml_collections.ConfigDict) and not isinstance(node, bool):
-            raise cfg_lib.ConfigError(f"--config.{item}: needs a value (--config.{item}=<value>); only a true/false "
+            raise ConfigError(f"--config.{item}: needs a value (--config.{item}=<value>); only a true/false "
                                       "field may stand alone, and a value never starts with --")
         out.append(f"{item}=true")
     return out
@@ -90,17 +90,18 @@ def main(argv: list[str] | None = None) -> int:
     runtime.setup()
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
+    from kx.evolve.errors import ConfigError, RunError
 
     try:
         if args.resume and not args.workdir:
-            raise run_lib.RunError("--resume: name the run with --workdir")
+            raise RunError("--resume: name the run with --workdir")
         if args.step is not None and not args.resume:
-            raise run_lib.RunError("--step: only with --resume")
+            raise RunError("--step: only with --resume")
         if args.resume and args.config is None:
             # The run's own config, with this command's overrides (e.g. more generations).
             saved = pathlib.Path(args.workdir) / "config.json"
             if not saved.is_file():
-                raise run_lib.RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
+                raise RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
             base = cfg_lib.read_run_config(saved)
             cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
             cfg.lock()
@@ -119,13 +120,13 @@ def main(argv: list[str] | None = None) -> int:
             run_lib.RunLock(workdir).check()
         if not args.overwrite:  # refuse an existing run directory now, before JAX starts
             run_lib.prepare_run_dir(workdir, args.resume, False)
-    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+    except (ConfigError, RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
     try:
         run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
                       log=lambda s: print(s, flush=True))
-    except (cfg_lib.ConfigError, run_lib.RunError) as e:
+    except (ConfigError, RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
     return 0

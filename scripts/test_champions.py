@@ -29,7 +29,7 @@ def main(argv=None) -> None:
     p.add_argument("--test-trials", type=int, default=1000)
     args = p.parse_args(argv)
     runtime.setup()
-    from kx.bench import LEARNING_TEST_SEED
+    from kx.bench.common import LEARNING_TEST_SEED
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve import streams

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 from kx.evolve import config as cfg_lib
-from kx.evolve import neat_encoding
+from kx.evolve.encodings import neat as neat_encoding
 from kx.neat import genome as gn
+from kx.neat.types import MAX_CONNS
 from kx.sim import env, observe
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
@@ -46,11 +47,11 @@ def test_genome_capacities_have_an_upper_bound(section, path):
     assert exp.encoding.neat_config.n_hidden == top
     # connection columns: bounded here, by the field the config has (not NEATConfig's max_conns)
     n_initial = exp.encoding.neat_config.n_initial_conns
-    cols = neat_encoding.MAX_CONNS - n_initial
+    cols = MAX_CONNS - n_initial
     err = _refused(path, [f"{section}.extra_conns={cols + 1}"])
     assert err.startswith(f"{section}.extra_conns: allowed an integer in [0, {cols}] ("), err
     assert err.endswith(f"got {cols + 1}") and "max_conns" not in err
-    assert _valid(path, [f"{section}.extra_conns={cols}"]).encoding.neat_config.max_conns == neat_encoding.MAX_CONNS
+    assert _valid(path, [f"{section}.extra_conns={cols}"]).encoding.neat_config.max_conns == MAX_CONNS
 
 
 def test_max_add_links_above_the_population_is_refused_by_both_neat_learners():

@@ -17,8 +17,8 @@ from kx import evaluate as evaluate_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import encoding as encodings
+from kx.evolve import registry, streams
 from kx.evolve import run as run_lib
-from kx.evolve import streams
 from kx.sim import env, observe, policies
 
 
@@ -61,9 +61,9 @@ class HillClimber(encodings.Encoding):
 
 @pytest.fixture(scope="module")
 def toy():
-    encodings.register(HillClimber)
+    registry.register(HillClimber)
     yield HillClimber
-    encodings.ENCODINGS.pop(HillClimber.name)
+    registry.ENCODINGS.pop(HillClimber.name)
 
 
 def _cfg(**over):

@@ -34,12 +34,10 @@ import jax
 import numpy as np
 from flax import struct
 
+from kx.evolve.errors import RunError
+
 #: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta)
 FORMAT = 2
-
-
-class RunError(RuntimeError):
-    """A run directory or checkpoint that cannot be used, with the reason."""
 
 
 @struct.dataclass

@@ -7,7 +7,7 @@ with :func:`load`; command-line overrides (``--config.population_size=50``,
 ``--config.neat.add_node_prob=0.05``, tuples and nested fields too) go through ml_collections' own flag
 parsing (``config_flags``, as the flax examples do). :func:`validate` refuses an unknown field or a value
 out of range with a message that names the field and what it allows; each method's encoding
-(:mod:`kx.evolve.encoding`) validates its own section.
+(:mod:`kx.evolve.encoding`, :mod:`kx.evolve.encodings`) validates its own section.
 """
 
 from __future__ import annotations
@@ -17,12 +17,13 @@ import difflib
 import importlib.util
 import json
 import pathlib
-from typing import Any
 
 import ml_collections
 
-from kx.evolve import encoding as encodings
 from kx.evolve import objective as objectives
+from kx.evolve import registry
+from kx.evolve.encoding import Encoding
+from kx.evolve.errors import ConfigError, ObjectiveError, is_int, need
 from kx.evolve.objective import OBJECTIVES
 from kx.sim import env
 from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
@@ -32,28 +33,26 @@ DEFAULT_CONFIG = CONFIG_DIR / "neat_3v2.py"
 LAYOUTS = ("fixed", "full")
 PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
-# Fields that may change when a run is resumed (how long it runs and what it writes, not what it
-# computes); every other field must equal the checkpoint's.
 # config.json's record of a transferred run's source (kx.evolve.transfer), beside the config's fields
 SOURCE_RECORD = "transfer_source"
+# Fields that may change when a run is resumed (how long it runs and what it writes, not what it
+# computes); every other field must equal the checkpoint's.
 RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames")
-
-
-class ConfigError(ValueError):
-    """A config field that does not exist or holds a value out of range."""
+# How a transfer source's population seeds a run (transfer.seeding; kx.evolve.transfer)
+SEEDINGS = ("population", "champion", "half")
 
 
 def base_config(method: str = "neat", **section_options) -> ml_collections.ConfigDict:
     """The run loop's fields at their defaults and the config section of ``method``'s encoding
     (``section_options`` go to its ``default_config``, e.g. ``base_config("neat", reading="literal")``
     for Table 2 read literally; see :mod:`kx.neat.presets`)."""
-    if method not in encodings.names():
-        raise ConfigError(f"method: allowed one of {encodings.names()}, got {method!r}")
-    cls = encodings.get(method)
+    if method not in registry.names():
+        raise ConfigError(f"method: allowed one of {registry.names()}, got {method!r}")
+    cls = registry.get(method)
     sim_cfg, sim_params = KeepAwayConfig(), KeepAwayParams()
     c = ml_collections.ConfigDict()
     c.task = "3v2"  # "<keepers>v<takers>": the paper's 3v2, 4v3, 5v3, 6v4 or any other in range
-    c.method = method  # the encoding: one of kx.evolve.encoding.names()
+    c.method = method  # the encoding: one of kx.evolve.registry.names()
     c.objective = "fitness"  # what the learner selects on (kx.evolve.objective); reports are always fitness
     # the novelty search hybrid (objective = "hybrid", SPEC section 4; kx.novelty): k nearest neighbours,
     # rho the weight of fitness in the score, the archive's size and its admission threshold
@@ -115,8 +114,8 @@ def _start_from(method: str, task=None) -> str:
 def _section_owner(field: str) -> str | None:
     """The method whose config section ``field`` lies in (``"hyperneat.image"`` -> ``"hyperneat"``)."""
     head = field.split(".")[0]
-    for m in encodings.names():
-        if "." in field and encodings.get(m).section == head:
+    for m in registry.names():
+        if "." in field and registry.get(m).section == head:
             return m
     return None
 
@@ -201,13 +200,14 @@ def load(path: str | pathlib.Path | None = None, overrides=()) -> ml_collections
     return cfg
 
 
-def _need(ok: bool, field: str, allowed: str, value: Any) -> None:
-    if not ok:
-        raise ConfigError(f"{field}: allowed {allowed}, got {value!r}")
-
-
-def _int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
+def check_transfer(cfg: ml_collections.ConfigDict) -> None:
+    """The ``transfer`` section's values (no file is read here; :func:`kx.evolve.transfer.load` reads
+    the source)."""
+    t = cfg.transfer
+    need(isinstance(t.source, str), "transfer.source", "a run directory (a string; '' for no transfer)", t.source)
+    need(is_int(t.step) and (t.step == -1 or t.step >= 1), "transfer.step",
+         "-1 (the latest checkpoint) or a checkpoint step >= 1", t.step)
+    need(isinstance(t.seeding, str) and t.seeding in SEEDINGS, "transfer.seeding", f"one of {SEEDINGS}", t.seeding)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -216,7 +216,7 @@ class Experiment:
 
     sim: KeepAwayConfig
     sim_params: KeepAwayParams
-    encoding: encodings.Encoding
+    encoding: Encoding
     layout: str
     objective: objectives.Objective
 
@@ -232,9 +232,9 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     if not isinstance(cfg, ml_collections.ConfigDict):
         raise ConfigError(f"config: expected an ml_collections.ConfigDict, got {type(cfg).__name__}")
     method = cfg.get("method")
-    _need(isinstance(method, str) and method in encodings.names(), "method", f"one of {encodings.names()}", method)
-    cls = encodings.get(method)
-    others = {encodings.get(m).section for m in encodings.names()} - {cls.section}
+    need(isinstance(method, str) and method in registry.names(), "method", f"one of {registry.names()}", method)
+    cls = registry.get(method)
+    others = {registry.get(m).section for m in registry.names()} - {cls.section}
     theirs = sorted(k for k in cfg.keys() if k in others)
     if cls.section not in cfg or theirs:
         instead = f", not the {theirs[0]!r} one" if theirs else ""
@@ -249,32 +249,30 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
     if missing:
         raise ConfigError(f"{missing[0]}: missing from the config (start config files from "
                           f"kx.evolve.config.base_config({method!r}))")
-    _need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
-          cfg.objective)
-    from kx.evolve import transfer
-
-    transfer.check_section(cfg)
+    need(isinstance(cfg.objective, str) and cfg.objective in OBJECTIVES, "objective", f"one of {OBJECTIVES}",
+         cfg.objective)
+    check_transfer(cfg)
     try:
         objective = objectives.make(cfg)
-    except objectives.ObjectiveError as e:
+    except ObjectiveError as e:
         raise ConfigError(str(e)) from None
-    _need(isinstance(cfg.layout, str) and cfg.layout in cls.layouts, "layout",
-          f"one of {cls.layouts} for method {method!r}", cfg.layout)
-    _need(_int(cfg.population_size) and 2 <= cfg.population_size <= 100_000, "population_size",
-          "an integer in [2, 100000]", cfg.population_size)
-    _need(_int(cfg.trials) and 1 <= cfg.trials <= 100_000, "trials", "an integer in [1, 100000]", cfg.trials)
-    _need(_int(cfg.generations) and 1 <= cfg.generations <= 1_000_000, "generations",
-          "an integer in [1, 1000000]", cfg.generations)
-    _need(_int(cfg.seed) and 0 <= cfg.seed < 2**31, "seed", "an integer in [0, 2^31)", cfg.seed)
-    _need(_int(cfg.checkpoint_every) and cfg.checkpoint_every >= 1, "checkpoint_every", "an integer >= 1",
-          cfg.checkpoint_every)
-    _need(_int(cfg.keep_checkpoints) and cfg.keep_checkpoints >= 1, "keep_checkpoints", "an integer >= 1",
-          cfg.keep_checkpoints)
-    _need(_int(cfg.validation_trials) and 1 <= cfg.validation_trials <= 100_000, "validation_trials",
-          "an integer in [1, 100000]", cfg.validation_trials)
-    _need(isinstance(cfg.gif, bool), "gif", "true or false", cfg.gif)
-    _need(_int(cfg.gif_frames) and 1 <= cfg.gif_frames <= 5000, "gif_frames", "an integer in [1, 5000]",
-          cfg.gif_frames)
+    need(isinstance(cfg.layout, str) and cfg.layout in cls.layouts, "layout",
+         f"one of {cls.layouts} for method {method!r}", cfg.layout)
+    need(is_int(cfg.population_size) and 2 <= cfg.population_size <= 100_000, "population_size",
+         "an integer in [2, 100000]", cfg.population_size)
+    need(is_int(cfg.trials) and 1 <= cfg.trials <= 100_000, "trials", "an integer in [1, 100000]", cfg.trials)
+    need(is_int(cfg.generations) and 1 <= cfg.generations <= 1_000_000, "generations",
+         "an integer in [1, 1000000]", cfg.generations)
+    need(is_int(cfg.seed) and 0 <= cfg.seed < 2**31, "seed", "an integer in [0, 2^31)", cfg.seed)
+    need(is_int(cfg.checkpoint_every) and cfg.checkpoint_every >= 1, "checkpoint_every", "an integer >= 1",
+         cfg.checkpoint_every)
+    need(is_int(cfg.keep_checkpoints) and cfg.keep_checkpoints >= 1, "keep_checkpoints", "an integer >= 1",
+         cfg.keep_checkpoints)
+    need(is_int(cfg.validation_trials) and 1 <= cfg.validation_trials <= 100_000, "validation_trials",
+         "an integer in [1, 100000]", cfg.validation_trials)
+    need(isinstance(cfg.gif, bool), "gif", "true or false", cfg.gif)
+    need(is_int(cfg.gif_frames) and 1 <= cfg.gif_frames <= 5000, "gif_frames", "an integer in [1, 5000]",
+         cfg.gif_frames)
     if not isinstance(cfg.task, str):
         raise ConfigError(f"task: allowed '<keepers>v<takers>' such as {', '.join(PAPER_TASKS)}, got {cfg.task!r}")
     s = cfg.sim
@@ -312,8 +310,8 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
     if not isinstance(d, dict):
         raise ConfigError(f"config: expected a JSON object of config fields, got {type(d).__name__}")
     method = d.get("method", "neat")
-    if method not in encodings.names():
-        raise ConfigError(f"method: allowed one of {encodings.names()}, got {method!r}")
+    if method not in registry.names():
+        raise ConfigError(f"method: allowed one of {registry.names()}, got {method!r}")
     cfg = base_config(method)
     known = set(_fields(cfg))
     for field, value in flatten(d).items():

@@ -1,7 +1,8 @@
 """The interface between the run loop and a method: an *encoding* turns a population into keep-away policies.
 
 The run loop (:mod:`kx.evolve.run`), ``kx.evaluate`` and the benchmarks know only this interface; each
-method is one class that implements it and registers itself under the config's ``method`` name::
+method is one class that implements it, registered under the config's ``method`` name
+(:mod:`kx.evolve.registry`; the built-in ones live in :mod:`kx.evolve.encodings`)::
 
     class MyEncoding(Encoding):
         name = "mine"                      # cfg.method
@@ -18,7 +19,7 @@ method is one class that implements it and registers itself under the config's `
         def policy_params(self, population): ...   # the evaluator's params for that policy
         # optional: transfer_problems and transfer, to seed a run from another run's checkpoint
 
-    register(MyEncoding)
+    kx.evolve.registry.register(MyEncoding)
 
 ``tell`` receives two arrays ``[P]``: ``score``, what the learner selects on (the objective's
 selection score, :mod:`kx.evolve.objective`), and ``fitness``, the raw task fitness. Everything the
@@ -44,36 +45,6 @@ import ml_collections
 
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
-
-ENCODINGS: dict[str, type["Encoding"]] = {}
-
-
-def register(cls: type["Encoding"]) -> type["Encoding"]:
-    """Make ``cls`` available as ``method = cls.name`` in configs (usable as a class decorator)."""
-    if not (isinstance(cls.name, str) and cls.name.isidentifier()):
-        raise ValueError(f"Encoding.name: allowed a Python identifier, got {cls.name!r}")
-    ENCODINGS[cls.name] = cls
-    return cls
-
-
-def get(name: str) -> type["Encoding"]:
-    """The registered encoding class of ``method = name`` (KeyError if none)."""
-    _load_builtin()
-    return ENCODINGS[name]
-
-
-BUILTIN = ("neat", "hyperneat", "cma_es")
-
-
-def names() -> tuple[str, ...]:
-    """The registered methods: the built-in ones first, then any others in registration order."""
-    _load_builtin()
-    return tuple(n for n in BUILTIN if n in ENCODINGS) + tuple(n for n in ENCODINGS if n not in BUILTIN)
-
-
-def _load_builtin() -> None:
-    # the built-in encodings register themselves on import
-    from kx.evolve import cma_es, hyperneat_encoding, neat_encoding  # noqa: F401
 
 
 def stack(genotypes: list) -> Any:

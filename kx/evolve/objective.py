@@ -16,19 +16,15 @@ the score.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 
 from kx import novelty as nv
+from kx.evolve.errors import ObjectiveError, is_int, is_number, need
 
 OBJECTIVES = ("fitness", "hybrid")
-
-
-class ObjectiveError(ValueError):
-    """A config field of an objective out of range (the message names the field)."""
 
 
 def novelty_defaults() -> dict:
@@ -85,25 +81,16 @@ class Hybrid(Objective):
                           self.params)
 
 
-def _number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _integer(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 def _check_novelty(section) -> dict:
     fields = {f: section[f] if f in section else None for f in novelty_defaults()}
     checks = {
-        "k": (lambda v: _integer(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
-        "rho": (lambda v: _number(v) and 0 <= v <= 1, "a number in [0, 1]"),
-        "archive_size": (lambda v: _integer(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
-        "threshold": (lambda v: _number(v) and v >= 0, "a finite number >= 0"),
+        "k": (lambda v: is_int(v) and 1 <= v <= 10_000, "an integer in [1, 10000]"),
+        "rho": (lambda v: is_number(v) and 0 <= v <= 1, "a number in [0, 1]"),
+        "archive_size": (lambda v: is_int(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
+        "threshold": (lambda v: is_number(v) and v >= 0, "a finite number >= 0"),
     }
     for field, (ok, allowed) in checks.items():
-        if not ok(fields[field]):
-            raise ObjectiveError(f"novelty.{field}: allowed {allowed}, got {fields[field]!r}")
+        need(ok(fields[field]), f"novelty.{field}", allowed, fields[field], error=ObjectiveError)
     return fields
 
 

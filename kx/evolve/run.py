@@ -58,9 +58,10 @@ import numpy as np
 
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import report, streams
-from kx.evolve.checkpoint import RunError, RunLock, RunState
+from kx.evolve import report, streams, transfer
+from kx.evolve.checkpoint import RunLock, RunState
 from kx.evolve.encoding import stack
+from kx.evolve.errors import RunError
 from kx.sim import env
 from kx.sim import evaluate as ev
 from kx.sim.policies import BASELINES
@@ -119,17 +120,13 @@ class Trainer:
         ``pinned``: a resumed run's record of its source, which names the source instead of
         ``transfer.source`` and ``transfer.step`` (``RunError`` if the source no longer matches it)."""
         if self.transfers and self.source is None:
-            from kx.evolve import transfer
-
-            self.source = transfer.load(self.cfg, self, pinned)
+            self.source = transfer.load(self.cfg, self, pinned, make_trainer=Trainer)
         return self.source
 
     def init(self) -> RunState:
         """The run state before generation 0: a fresh learner, or one seeded from the transfer source."""
         if not self.transfers:
             return self._init()
-        from kx.evolve import transfer
-
         learner = transfer.seed(self, self.attach_source(), streams.transfer(self.cfg.seed))
         return self._init(learner)
 
@@ -296,8 +293,6 @@ def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: boo
     # authority: never rewritten, and what the run reseeds from if it has no checkpoint yet
     saved_record = None
     if trainer.transfers and resume and (run_dir / "config.json").is_file():
-        from kx.evolve import transfer
-
         saved_record = transfer.saved_record(run_dir)
     if trainer.transfers and not (resume and ckpt.steps(run_dir)):
         if not resume:

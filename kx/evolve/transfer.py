@@ -38,28 +38,20 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
 import pathlib
-from typing import Any
+from typing import Any, Callable
 
 import jax
 import ml_collections
 import numpy as np
 
-from kx.evolve.config import ConfigError
-
-SEEDINGS = ("population", "champion", "half")
-
-
-def check_section(cfg: ml_collections.ConfigDict) -> None:
-    """The ``transfer`` section's values (no file is read here)."""
-    t = cfg.transfer
-    if not isinstance(t.source, str):
-        raise ConfigError(f"transfer.source: allowed a run directory (a string; '' for no transfer), got {t.source!r}")
-    if not (isinstance(t.step, int) and not isinstance(t.step, bool) and (t.step == -1 or t.step >= 1)):
-        raise ConfigError(f"transfer.step: allowed -1 (the latest checkpoint) or a checkpoint step >= 1, "
-                          f"got {t.step!r}")
-    if not (isinstance(t.seeding, str) and t.seeding in SEEDINGS):
-        raise ConfigError(f"transfer.seeding: allowed one of {SEEDINGS}, got {t.seeding!r}")
+from kx.evolve import checkpoint as ckpt
+from kx.evolve import config as cfg_lib
+from kx.evolve import streams
+from kx.evolve.config import SOURCE_RECORD
+from kx.evolve.errors import ConfigError, RunError
+from kx.sim.types import KeepAwayConfig
 
 
 def digest(tree: Any) -> str:
@@ -123,10 +115,6 @@ PINNED_KEYS = ("path", "step", "digest")
 
 def saved_record(run_dir) -> dict | None:
     """The ``transfer_source`` record of the run in ``run_dir`` (``None``: no config.json, or no record)."""
-    import json
-
-    from kx.evolve.config import SOURCE_RECORD
-
     path = pathlib.Path(run_dir) / "config.json"
     if not path.is_file():
         return None
@@ -138,38 +126,32 @@ def saved_record(run_dir) -> dict | None:
 
 
 def _ask_key(seed: int, generation: int):
-    from kx.evolve import streams
-
     return streams.learner_ask(seed, generation)
 
 
 def _task_size(task: str) -> tuple[int, int]:
-    from kx.sim.types import KeepAwayConfig
-
     c = KeepAwayConfig.from_task(task)
     return c.n_keepers, c.n_takers
 
 
-def load(cfg: ml_collections.ConfigDict, trainer, pinned: dict | None = None) -> Source:
+def load(cfg: ml_collections.ConfigDict, trainer, pinned: dict | None = None, *,
+         make_trainer: Callable[[ml_collections.ConfigDict], Any]) -> Source:
     """The source of ``cfg.transfer`` restored for the target run of ``trainer``, or :class:`ConfigError`
     (naming ``transfer.source``, ``transfer.step`` or ``transfer.seeding``) saying why it cannot seed it.
+    ``make_trainer``: the trainer of the source's config (the run loop's :class:`~kx.evolve.run.Trainer`),
+    which restores the source's checkpoint.
 
     ``pinned``: the record a resumed target run wrote when it started (config.json's
     ``transfer_source``). The source is then the recorded path's recorded checkpoint, whatever
     ``transfer.source`` and ``transfer.step`` resolve to now, and it must have the recorded digest;
-    otherwise :class:`~kx.evolve.checkpoint.RunError` names the record's field and gives what was
+    otherwise :class:`~kx.evolve.errors.RunError` names the record's field and gives what was
     recorded and what was found."""
-    from kx.evolve.checkpoint import RunError
-
-    check_section(cfg)
+    cfg_lib.check_transfer(cfg)
     if not cfg.transfer.source:
         raise ConfigError("transfer.source: empty (no transfer configured)")
     if pinned is None:
-        return _load(cfg, trainer, pathlib.Path(cfg.transfer.source).expanduser().resolve(),
+        return _load(cfg, trainer, make_trainer, pathlib.Path(cfg.transfer.source).expanduser().resolve(),
                      None if cfg.transfer.step == -1 else cfg.transfer.step)
-
-    from kx.evolve import checkpoint as ckpt
-    from kx.evolve.config import SOURCE_RECORD
 
     why = f"--resume: this run has no checkpoint yet and reseeds from the source recorded in its config.json " \
           f"({SOURCE_RECORD}), which"
@@ -190,14 +172,12 @@ def load(cfg: ml_collections.ConfigDict, trainer, pinned: dict | None = None) ->
         raise RunError(f"{why} no longer matches: {SOURCE_RECORD}.step: recorded checkpoint {step} of {run_dir}, "
                        f"found checkpoints {have} (the source has changed since this run started)")
     try:
-        source = _load(cfg, trainer, run_dir, step)
+        source = _load(cfg, trainer, make_trainer, run_dir, step)
     except ConfigError as e:
         raise RunError(f"{why} no longer seeds it: {e}") from None
     if source.digest != pinned["digest"]:
-        from kx.evolve.config import identity_mismatch
-
         recorded_cfg = pinned.get("config")
-        diff = identity_mismatch(recorded_cfg, source.cfg) if isinstance(recorded_cfg, dict) else None
+        diff = cfg_lib.identity_mismatch(recorded_cfg, source.cfg) if isinstance(recorded_cfg, dict) else None
         diff = diff and diff.replace(" in the checkpoint, ", " recorded, ")
         raise RunError(f"{why} no longer matches: {SOURCE_RECORD}.digest: recorded {pinned['digest']}, found "
                        f"{source.digest} in checkpoint {step} of {run_dir} (the source has changed since this run "
@@ -205,12 +185,8 @@ def load(cfg: ml_collections.ConfigDict, trainer, pinned: dict | None = None) ->
     return source
 
 
-def _load(cfg: ml_collections.ConfigDict, trainer, run_dir: pathlib.Path, want: int | None) -> Source:
+def _load(cfg: ml_collections.ConfigDict, trainer, make_trainer, run_dir: pathlib.Path, want: int | None) -> Source:
     """Checkpoint ``want`` (``None``: the latest) of the source run in ``run_dir`` (absolute), checked."""
-    from kx.evolve import config as cfg_lib
-    from kx.evolve.checkpoint import RunError
-    from kx.evolve.run import Trainer
-
     t = cfg.transfer
     if not run_dir.is_dir():
         raise ConfigError(f"transfer.source: {run_dir} is not a directory (the source must be a kx run directory)")
@@ -230,7 +206,7 @@ def _load(cfg: ml_collections.ConfigDict, trainer, run_dir: pathlib.Path, want: 
                           f"this run's task {cfg.task} ({tk} keepers, {tt} takers); policies transfer to tasks at "
                           "least as large")
     try:
-        source_trainer = Trainer(scfg)
+        source_trainer = make_trainer(scfg)
     except ConfigError as e:
         raise ConfigError(f"transfer.source: {run_dir}'s config is not valid for this kx ({e})") from None
     try:

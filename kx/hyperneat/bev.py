@@ -45,7 +45,7 @@ from kx.sim.ops import col, fenced, pick
 from kx.sim.policies import Policy, Shared
 from kx.sim.types import KeepAwayConfig, State
 
-IMAGES = observe.BEV_IMAGES  # ("paper", "authors")
+#: the decisions the policy makes from its output cells (the images: kx.sim.observe.BEV_IMAGES)
 DECISIONS = ("cells", "literal")
 # floor(i * r + ROUND_OFFSET) with r = fl(d / n) is exactly floor((2 i d + n) / (2 n)) (the digital
 # line's "halves rounded up") for |i|, |d|, n < 64: the computed i * r is within 1e-5 of i * d / n, an
@@ -55,8 +55,8 @@ ROUND_OFFSET = 0.501
 
 
 def _check(config: KeepAwayConfig, image: str, decision: str, activation: str) -> None:
-    if image not in IMAGES:
-        raise ValueError(f"image: allowed {IMAGES}, got {image!r}")
+    if image not in observe.BEV_IMAGES:
+        raise ValueError(f"image: allowed {observe.BEV_IMAGES}, got {image!r}")
     if decision not in DECISIONS:
         raise ValueError(f"decision: allowed {DECISIONS}, got {decision!r}")
     if activation not in ACTIVATIONS:

@@ -25,7 +25,7 @@ from kx.sim import env, observe
 
 def draw_substrate(table: dict, encoding, path: str | pathlib.Path, seed: int = 0) -> pathlib.Path:
     """``table``: one genome's ``{"w": [N, N], "b": [N]}`` (numpy); ``encoding``: the run's
-    :class:`~kx.evolve.hyperneat_encoding.HyperNEATEncoding` (its task, image and decision)."""
+    :class:`~kx.evolve.encodings.hyperneat.HyperNEATEncoding` (its task, image and decision)."""
     import matplotlib
 
     matplotlib.use("Agg")

@@ -63,7 +63,7 @@ Rates (:class:`~kx.neat.types.NEATParams`):
   InitalConnectionPercentage 1). Initial and new-link weights U(-1, 1) (``weight_init_range``, kx's
   default): sd 0.58, near the authors' new-link N(0, 0.5). Their initial population is a seed CPPN and
   149 clones with weights U(-5, 5), which kx does not reproduce here.
-* Table 2 (``kx.neat.presets._TABLE2``, shared with the keep-away NEAT presets): population 150, at most
+* Table 2 (``kx.neat.presets.TABLE2``, shared with the keep-away NEAT presets): population 150, at most
   10 species of at most 30 offspring, weights in [-5, 5], survival threshold 0.2, compatibility
   threshold 3 (the start; ``threshold_step`` 0.5 and ``respeciate`` 4 as for keep-away).
 * Kept from Stanley's NEAT (kx's defaults), where the authors differ: the compatibility distance c1 = c2
@@ -76,8 +76,8 @@ Rates (:class:`~kx.neat.types.NEATParams`):
 
 from __future__ import annotations
 
-from kx.neat.presets import _TABLE2
-from kx.neat.types import NEATConfig, NEATParams
+from kx.neat.presets import TABLE2
+from kx.neat.types import NEATConfig, NEATParams, capacity
 
 CPPN_ACTIVATIONS = ("identity", "gaussian", "bipolar_sigmoid", "abs", "sine")  # SPEC §3, the paper's set
 MAX_HIDDEN = 16
@@ -90,15 +90,14 @@ def cppn(n_inputs: int = 4, n_outputs: int = 3, **config_overrides) -> tuple[NEA
     """The CPPN preset: ``(NEATConfig, NEATParams)`` for CPPNs with ``n_inputs`` coordinates (x1, y1, x2,
     y2; 5 with a distance input) and ``n_outputs`` outputs (weight, expression, bias). Every value and
     its source: the module docstring. ``config_overrides`` replace :class:`NEATConfig` fields."""
-    n_initial = (n_inputs + 1) * n_outputs
     kw = dict(n_inputs=n_inputs, n_outputs=n_outputs, population_size=150,
-              max_nodes=n_inputs + 1 + n_outputs + MAX_HIDDEN, max_conns=n_initial + EXTRA_CONNS,
-              max_genes=n_initial + EXTRA_GENES, species_capacity=10, activation_options=CPPN_ACTIVATIONS,
+              **capacity(n_inputs, n_outputs, MAX_HIDDEN, EXTRA_CONNS, EXTRA_GENES),
+              species_capacity=10, activation_options=CPPN_ACTIVATIONS,
               hidden_activation="gaussian", output_activation="bipolar_sigmoid", random_hidden_activation=True,
               max_add_links=MAX_ADD_LINKS)
     kw.update(config_overrides)
     params = NEATParams(
-        **_TABLE2,
+        **TABLE2,
         add_node_prob=0.05,  # Mutation.xml AddNode
         add_link_prob=0.15,  # AddConnection
         delete_link_prob=0.05,  # DeleteConnection

@@ -22,7 +22,7 @@
 
 from __future__ import annotations
 
-from kx.neat.types import NEATConfig, NEATParams
+from kx.neat.types import NEATConfig, NEATParams, capacity
 
 
 def xor(**config_overrides) -> tuple[NEATConfig, NEATParams]:
@@ -33,15 +33,14 @@ def xor(**config_overrides) -> tuple[NEATConfig, NEATParams]:
 
 
 def _keepaway_config(n_inputs: int, n_outputs: int, **config_overrides) -> NEATConfig:
-    kw = dict(n_inputs=n_inputs, n_outputs=n_outputs, population_size=150, max_nodes=n_inputs + 1 + n_outputs + 16,
-              max_conns=(n_inputs + 1) * n_outputs + 86,
-              max_genes=(n_inputs + 1) * n_outputs + 32, species_capacity=10)
+    kw = dict(n_inputs=n_inputs, n_outputs=n_outputs, population_size=150,
+              **capacity(n_inputs, n_outputs, max_hidden=16, extra_conns=86, extra_genes=32), species_capacity=10)
     kw.update(config_overrides)
     return NEATConfig(**kw)
 
 
-# What both readings take from Table 2 and Stanley's NEAT.
-_TABLE2 = dict(
+# What both readings take from Table 2 and Stanley's NEAT (and the CPPN preset, kx.hyperneat.presets).
+TABLE2 = dict(
     target_species=10,  # Table 2: maximum number of species
     max_species_population=30,  # Table 2: maximum species population
     weight_range=5.0,  # Table 2: weight value range [-5, 5]
@@ -61,7 +60,7 @@ def keepaway_literal(n_inputs: int = 13, n_outputs: int = 3, **config_overrides)
     U(-0.01, 0.01) (Stanley's 10% replacements kept); Stanley's add node 0.03 and add link 0.05; fully
     connected initial genomes."""
     params = NEATParams(
-        **_TABLE2,
+        **TABLE2,
         weight_perturb_power=0.01,  # Table 2: weight mutation +-0.01
         weight_mutate_prob=1.0,
         weight_mutate_rate=0.05,  # Table 2: mutation rate 0.05, read as the per-weight rate
@@ -77,7 +76,7 @@ def keepaway_sharpneat(n_inputs: int = 13, n_outputs: int = 3, **config_override
     possible input-output links at the start. Kept from Stanley: the initial and new weights U(-1, 1)
     (SharpNEAT draws +-5), mutation of crossover offspring, 25% mutation-only offspring."""
     params = NEATParams(
-        **_TABLE2,
+        **TABLE2,
         weight_scheme=1,  # Gaussian steps of sigma 0.02 (45.5%) or 1 (45.4%) on a few links, or resets
         weight_small_sigma=0.02, weight_large_sigma=1.0, weight_small_share=0.455, weight_large_share=0.454,
         weight_select_fraction=0.02,

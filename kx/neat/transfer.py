@@ -51,6 +51,9 @@ and can continue evolving under the target config (:func:`kx.neat.algorithm.init
 
 Everything here runs once per transfer on the host (numpy); the result is a :class:`Genome` of jnp
 arrays with the target's shapes.
+
+Between configs of the same inputs and outputs nothing is mapped: :func:`resize` pads the genomes to
+the target's (at least as large) capacity.
 """
 
 from __future__ import annotations
@@ -63,7 +66,7 @@ import numpy as np
 
 from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, OUTPUT, Genome, NEATConfig, NEATError, NEATParams
 
-__all__ = ["fit_problems", "map_population"]
+__all__ = ["fit_problems", "map_population", "resize"]
 
 
 @dataclasses.dataclass
@@ -351,3 +354,22 @@ def map_population(key: jax.Array, population: Genome, source: NEATConfig, targe
     out = Genome(**{f: jnp.asarray(getattr(out, f)[0] if plan.single else getattr(out, f), dtypes[f])
                     for f in dtypes})
     return out, jnp.asarray(plan.next_node_id, jnp.int32), jnp.asarray(plan.next_innov, jnp.int32)
+
+
+def resize(genomes, source, target):
+    """Genomes of NEAT config ``source`` in the (at least as large) capacity of config ``target`` with
+    the same inputs and outputs: empty node slots and connection columns appended, nothing else changed."""
+    dn, dc = target.max_nodes - source.max_nodes, target.max_conns - source.max_conns
+    if dn < 0 or dc < 0 or (source.n_inputs, source.n_outputs) != (target.n_inputs, target.n_outputs):
+        raise ValueError("resize: the target capacity must hold the source's and have its inputs and outputs")
+    fill = {"node_id": EMPTY, "node_kind": EMPTY, "node_act": 0, "node_valid": False, "conn_innov": EMPTY,
+            "conn_src": EMPTY, "conn_dst": EMPTY, "conn_weight": 0.0, "conn_enabled": False, "conn_valid": False}
+
+    def pad(name, a):
+        n = dn if name.startswith("node") else dc
+        if n == 0:
+            return a
+        widths = [(0, 0)] * (a.ndim - 1) + [(0, n)]
+        return jnp.pad(a, widths, constant_values=jnp.asarray(fill[name], a.dtype))
+
+    return genomes.replace(**{f: pad(f, getattr(genomes, f)) for f in fill})

@@ -36,10 +36,27 @@ EMPTY = -1
 # The most genes weight_scheme 2 picks by count (NEATParams.weight_select_count): the size of a top-k,
 # a static shape, while the count itself stays a traced parameter.
 MAX_SELECT_COUNT = 8
+# The most connection columns a config may have (NEATConfig.max_conns).
+MAX_CONNS = 65535
 
 
 class NEATError(ValueError):
     """A NEAT configuration or parameter value out of its allowed range."""
+
+
+def initial_conns(n_inputs: int, n_outputs: int) -> int:
+    """The links of the fully connected initial genome: every input and the bias to every output."""
+    return (n_inputs + 1) * n_outputs
+
+
+def capacity(n_inputs: int, n_outputs: int, max_hidden: int, extra_conns: int, extra_genes: int) -> dict:
+    """:class:`NEATConfig`'s ``max_nodes``, ``max_conns`` and ``max_genes`` of a genome capacity given as
+    ``max_hidden`` hidden nodes and ``extra_conns`` connection columns and ``extra_genes`` genes beyond the
+    initial genome's links (the inverse: :attr:`NEATConfig.n_hidden`, :attr:`NEATConfig.extra_conns`,
+    :attr:`NEATConfig.extra_genes`)."""
+    n_initial = initial_conns(n_inputs, n_outputs)
+    return dict(max_nodes=n_inputs + 1 + n_outputs + max_hidden, max_conns=n_initial + extra_conns,
+                max_genes=n_initial + extra_genes)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,8 +108,8 @@ class NEATConfig:
              "population_size", "an integer in 2..1000000")
         need(isinstance(self.max_nodes, int) and self.max_nodes >= self.n_fixed, "max_nodes",
              f"an integer >= n_inputs + 1 + n_outputs = {self.n_fixed}")
-        need(isinstance(self.max_conns, int) and self.n_initial_conns <= self.max_conns <= 65535, "max_conns",
-             f"an integer in (n_inputs + 1) * n_outputs = {self.n_initial_conns} (the initial genome)..65535")
+        need(isinstance(self.max_conns, int) and self.n_initial_conns <= self.max_conns <= MAX_CONNS, "max_conns",
+             f"an integer in (n_inputs + 1) * n_outputs = {self.n_initial_conns} (the initial genome)..{MAX_CONNS}")
         need(isinstance(self.max_genes, int) and (self.max_genes == 0 or self.n_initial_conns <= self.max_genes
                                                    <= self.max_conns), "max_genes",
              f"0 or an integer in {self.n_initial_conns}..max_conns ({self.max_conns})")
@@ -134,7 +151,17 @@ class NEATConfig:
 
     @property
     def n_initial_conns(self) -> int:
-        return (self.n_inputs + 1) * self.n_outputs
+        return initial_conns(self.n_inputs, self.n_outputs)
+
+    @property
+    def extra_conns(self) -> int:
+        """Connection columns beyond the initial genome's links (:func:`capacity`'s ``extra_conns``)."""
+        return self.max_conns - self.n_initial_conns
+
+    @property
+    def extra_genes(self) -> int:
+        """Genes per genome beyond the initial genome's links (:func:`capacity`'s ``extra_genes``)."""
+        return self.genes - self.n_initial_conns
 
     @property
     def first_output(self) -> int:

@@ -144,6 +144,18 @@ def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_a
         state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev, table)
 
 
+def lockstep(policy: Policy, lane_params: Any, lanes: State, params: KeepAwayParams, config: KeepAwayConfig, *,
+             key: jax.Array, iterations: int):
+    """The step alone: ``iterations`` iterations of every lane of ``lanes`` (``[.., n]``, lane ``i`` trial
+    ``i`` of the kick noise of ``key``) in lockstep on every device, finished lanes stepped too (no
+    narrowing, no early return), with a per-lane policy's ``lane_params``. Returns the state and, per
+    device, the iterations it ran and its live lanes ``[n_dev, 2]``. ``python -m kx.bench sim`` times it
+    beside :func:`evaluate`."""
+    ids = jnp.arange(lanes.done.shape[-1], dtype=jnp.int32)
+    return _advance(lanes, lane_params, env.noise_words(key, ids), ids, key, params, np.int32(iterations),
+                    np.int32(-1), policy=policy, config=config, n_dev=jax.local_device_count())
+
+
 @functools.partial(jax.jit, static_argnames=("width", "n_dev"))
 def _compact(state: State, lane_params: Any, noise_word, lane_id, *, width: int, n_dev: int):
     """On each device, the ``width // n_dev`` of its lanes that come first when live lanes are put before

@@ -28,8 +28,8 @@ import jax.numpy as jnp
 import ml_collections
 import numpy as np
 
-from kx.evolve.config import ConfigError
-from kx.evolve.encoding import Encoding, register
+from kx.evolve.encoding import Encoding
+from kx.evolve.errors import ConfigError, is_int, need
 from kx.sim import observe
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig
@@ -108,7 +108,6 @@ def network_policy(sim: KeepAwayConfig, layout: str, hidden: int) -> Policy:
     return Policy(f"cma_es-{layout}-h{hidden}", apply, shared=True)
 
 
-@register
 class CMAESEncoding(Encoding):
     name = "cma_es"
     section = "cma_es"
@@ -127,12 +126,11 @@ class CMAESEncoding(Encoding):
     def __init__(self, cfg, sim, sim_params):
         super().__init__(cfg, sim, sim_params)
         c = cfg.cma_es
-        if not (isinstance(c.sigma_init, float) and 0.0 < c.sigma_init <= 1e4):
-            raise ConfigError(f"cma_es.sigma_init: allowed a number in (0, 10000], got {c.sigma_init!r}")
-        if not (isinstance(c.hidden, int) and not isinstance(c.hidden, bool) and 0 <= c.hidden <= 256):
-            raise ConfigError(f"cma_es.hidden: allowed an integer in [0, 256] (0: a linear network), got {c.hidden!r}")
-        if cfg.population_size < 4:
-            raise ConfigError(f"population_size: allowed at least 4 for cma_es, got {cfg.population_size}")
+        need(isinstance(c.sigma_init, float) and 0.0 < c.sigma_init <= 1e4, "cma_es.sigma_init",
+             "a number in (0, 10000]", c.sigma_init)
+        need(is_int(c.hidden) and 0 <= c.hidden <= 256, "cma_es.hidden", "an integer in [0, 256] (0: a linear network)",
+             c.hidden)
+        need(cfg.population_size >= 4, "population_size", "at least 4 for cma_es", cfg.population_size)
         try:
             import evosax.algorithms  # noqa: F401
         except ImportError as e:  # pragma: no cover - evosax is a dependency

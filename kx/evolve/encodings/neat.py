@@ -23,13 +23,14 @@ import jax
 import ml_collections
 import numpy as np
 
-from kx.evolve.config import ConfigError
-from kx.evolve.encoding import Encoding, register
+from kx.evolve.encoding import Encoding, stack
+from kx.evolve.errors import ConfigError, is_int, need
 from kx.evolve.policy import neat_policy
 from kx.neat import presets
+from kx.neat import transfer as neat_transfer
 from kx.neat.activations import ACTIVATIONS
 from kx.neat.algorithm import NEAT
-from kx.neat.types import NEATError, NEATParams
+from kx.neat.types import MAX_CONNS, NEATError, NEATParams, capacity, initial_conns
 from kx.sim import observe
 
 NEAT_METRICS = ("n_species", "stagnant_species", "threshold", "mean_hidden", "mean_links", "champion_hidden",
@@ -41,71 +42,38 @@ def neat_params_fields(params: NEATParams) -> dict:
     return {f.name: getattr(params, f.name) for f in dataclasses.fields(NEATParams)}
 
 
-def _need(ok: bool, field: str, allowed: str, value) -> None:
-    if not ok:
-        raise ConfigError(f"{field}: allowed {allowed}, got {value!r}")
-
-
-def _int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 # The most hidden-node slots a genome may have. Each lane of an evaluation carries its network's
 # ``[max_hidden + outputs, inputs + 1 + max_hidden]`` weights (about 0.3 MB at 256: 1.3 GB over the
 # default 150 x 30 lanes) and the network's forward pass is unrolled over hidden-node pairs (256 gives
 # 33,000 terms to compile), so beyond this a run does not fit in memory or compile time; the shipped
 # configs use 16.
 MAX_HIDDEN = 256
-# The most connection columns (kx.neat.types.NEATConfig refuses a larger max_conns).
-MAX_CONNS = 65535
 
 
 def check_capacity(n: dict, section: str, population_size: int, n_initial: int) -> None:
     """The genome-capacity fields of a NEAT learner's config section ``n`` (``neat``, ``hyperneat``);
-    ``n_initial`` is the initial genome's links (``(inputs + 1) * outputs``)."""
+    ``n_initial`` is the initial genome's links (:func:`kx.neat.types.initial_conns`); at most
+    :data:`kx.neat.types.MAX_CONNS` connection columns."""
     for f in ("species_capacity", "extra_genes", "max_add_links"):
         low = 1 if f == "species_capacity" else 0
-        _need(_int(n[f]) and n[f] >= low, f"{section}.{f}", f"an integer >= {low}", n[f])
-    _need(_int(n["max_hidden"]) and 0 <= n["max_hidden"] <= MAX_HIDDEN, f"{section}.max_hidden",
-          f"an integer in [0, {MAX_HIDDEN}]", n["max_hidden"])
+        need(is_int(n[f]) and n[f] >= low, f"{section}.{f}", f"an integer >= {low}", n[f])
+    need(is_int(n["max_hidden"]) and 0 <= n["max_hidden"] <= MAX_HIDDEN, f"{section}.max_hidden",
+         f"an integer in [0, {MAX_HIDDEN}]", n["max_hidden"])
     top = MAX_CONNS - n_initial
-    _need(_int(n["extra_conns"]) and 0 <= n["extra_conns"] <= top, f"{section}.extra_conns",
-          f"an integer in [0, {top}] ({MAX_CONNS} connection columns less the initial genome's {n_initial})",
-          n["extra_conns"])
-    _need(n["species_capacity"] <= population_size, f"{section}.species_capacity",
-          f"at most population_size ({population_size})", n["species_capacity"])
-    _need(n["extra_genes"] <= n["extra_conns"], f"{section}.extra_genes",
-          f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
+    need(is_int(n["extra_conns"]) and 0 <= n["extra_conns"] <= top, f"{section}.extra_conns",
+         f"an integer in [0, {top}] ({MAX_CONNS} connection columns less the initial genome's {n_initial})",
+         n["extra_conns"])
+    need(n["species_capacity"] <= population_size, f"{section}.species_capacity",
+         f"at most population_size ({population_size})", n["species_capacity"])
+    need(n["extra_genes"] <= n["extra_conns"], f"{section}.extra_genes",
+         f"at most {section}.extra_conns ({n['extra_conns']})", n["extra_genes"])
 
 
 def check_add_links(value, section: str, population_size: int, zero: str) -> None:
     """``<section>.max_add_links``: 0 (``zero``, the method's own cap) or at most the population (a
     generation carries out at most one add-link per offspring)."""
-    _need(_int(value) and 0 <= value <= population_size, f"{section}.max_add_links",
-          f"an integer in [0, population_size = {population_size}] (0: {zero})", value)
-
-
-def resize(genomes, source, target):
-    """Genomes of NEAT config ``source`` in the (at least as large) capacity of config ``target`` with
-    the same inputs and outputs: empty node slots and connection columns appended, nothing else changed."""
-    import jax.numpy as jnp
-
-    from kx.neat.types import EMPTY
-
-    dn, dc = target.max_nodes - source.max_nodes, target.max_conns - source.max_conns
-    if dn < 0 or dc < 0 or (source.n_inputs, source.n_outputs) != (target.n_inputs, target.n_outputs):
-        raise ValueError("resize: the target capacity must hold the source's and have its inputs and outputs")
-    fill = {"node_id": EMPTY, "node_kind": EMPTY, "node_act": 0, "node_valid": False, "conn_innov": EMPTY,
-            "conn_src": EMPTY, "conn_dst": EMPTY, "conn_weight": 0.0, "conn_enabled": False, "conn_valid": False}
-
-    def pad(name, a):
-        n = dn if name.startswith("node") else dc
-        if n == 0:
-            return a
-        widths = [(0, 0)] * (a.ndim - 1) + [(0, n)]
-        return jnp.pad(a, widths, constant_values=jnp.asarray(fill[name], a.dtype))
-
-    return genomes.replace(**{f: pad(f, getattr(genomes, f)) for f in fill})
+    need(is_int(value) and 0 <= value <= population_size, f"{section}.max_add_links",
+         f"an integer in [0, population_size = {population_size}] (0: {zero})", value)
 
 
 def learner(n: dict, config, section: str) -> tuple[NEATParams, NEAT]:
@@ -119,7 +87,6 @@ def learner(n: dict, config, section: str) -> tuple[NEATParams, NEAT]:
         raise ConfigError(str(e).replace("NEATParams.", f"{section}.").replace("NEATConfig.", f"{section}.")) from None
 
 
-@register
 class NEATEncoding(Encoding):
     name = "neat"
     section = "neat"
@@ -135,24 +102,23 @@ class NEATEncoding(Encoding):
         ncfg, nparams = readings[reading]()
         neat = neat_params_fields(nparams)
         neat.update(output_activation=ncfg.output_activation, hidden_activation=ncfg.hidden_activation,
-                    max_hidden=ncfg.max_nodes - ncfg.n_fixed, species_capacity=ncfg.species_capacity,
-                    extra_conns=ncfg.max_conns - ncfg.n_initial_conns,
-                    extra_genes=ncfg.genes - ncfg.n_initial_conns, max_add_links=ncfg.max_add_links)
+                    max_hidden=ncfg.n_hidden, species_capacity=ncfg.species_capacity, extra_conns=ncfg.extra_conns,
+                    extra_genes=ncfg.extra_genes, max_add_links=ncfg.max_add_links)
         return ml_collections.ConfigDict(neat)
 
     def __init__(self, cfg, sim, sim_params):
         super().__init__(cfg, sim, sim_params)
         n = dict(cfg.neat)
         n_in, n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
-        check_capacity(n, "neat", cfg.population_size, (n_in + 1) * n_out)
+        check_capacity(n, "neat", cfg.population_size, initial_conns(n_in, n_out))
         check_add_links(n["max_add_links"], "neat", cfg.population_size, "max(8, population_size // 8)")
         for f in ("output_activation", "hidden_activation"):
-            _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"neat.{f}", f"one of {sorted(ACTIVATIONS)}", n[f])
+            need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"neat.{f}", f"one of {sorted(ACTIVATIONS)}", n[f])
         try:
             self.neat_config, _ = presets.keepaway(
                 n_inputs=n_in, n_outputs=n_out, population_size=cfg.population_size,
-                max_nodes=n_in + 1 + n_out + n["max_hidden"], max_conns=(n_in + 1) * n_out + n["extra_conns"],
-                max_genes=(n_in + 1) * n_out + n["extra_genes"], species_capacity=n["species_capacity"],
+                **capacity(n_in, n_out, n["max_hidden"], n["extra_conns"], n["extra_genes"]),
+                species_capacity=n["species_capacity"],
                 output_activation=n["output_activation"], hidden_activation=n["hidden_activation"],
                 activation_options=tuple(dict.fromkeys((n["hidden_activation"], n["output_activation"]))),
                 max_add_links=n["max_add_links"])
@@ -220,8 +186,6 @@ class NEATEncoding(Encoding):
                     out.append(f"the source's genomes have {a} {what} and this run's config {b} ({sec}.{field}): "
                                f"its genome capacity does not fit")
         else:
-            from kx.neat import transfer as neat_transfer
-
             genomes = self._seed_genomes(state, seeding, None)
             out += neat_transfer.fit_problems(genomes, s, t, *maps, next_node_id=state.learner.next_node_id)
         return out
@@ -229,8 +193,6 @@ class NEATEncoding(Encoding):
     def _seed_genomes(self, state, seeding, order):
         """The source genomes a seeding carries (``order`` None: the whole population stands in for the
         fittest half, for capacity checks)."""
-        from kx.evolve.encoding import stack
-
         pop = state.learner.population
         if seeding == "champion":
             return stack([state.champion])
@@ -240,8 +202,6 @@ class NEATEncoding(Encoding):
         return pop
 
     def transfer(self, key, source, state, seeding, order):
-        from kx.neat import transfer as neat_transfer
-
         s, t = source.neat_config, self.neat_config
         learner = state.learner
         genomes = self._seed_genomes(state, seeding, order)
@@ -249,7 +209,7 @@ class NEATEncoding(Encoding):
         k_map, k_seed = jax.random.split(key)
         maps = self._maps(source)
         if maps is None:  # the same inputs and outputs: the genomes carry over unchanged (padded to this capacity)
-            genomes = resize(genomes, s, t)
+            genomes = neat_transfer.resize(genomes, s, t)
         else:  # Algorithm 1
             genomes, next_node, next_innov = neat_transfer.map_population(
                 k_map, genomes, s, t, *maps, next_node_id=next_node, next_innov=next_innov, params=self.neat_params)

@@ -28,25 +28,14 @@ import jax.numpy as jnp
 import ml_collections
 import numpy as np
 
-from kx.evolve.config import ConfigError
-from kx.evolve.encoding import register
-from kx.evolve.neat_encoding import (
-    NEATEncoding,
-    _int,
-    _need,
-    check_add_links,
-    check_capacity,
-    learner,
-    neat_params_fields,
-)
+from kx.evolve.encodings.neat import NEATEncoding, check_add_links, check_capacity, learner, neat_params_fields
+from kx.evolve.errors import ConfigError, is_int, need
+from kx.hyperneat.bev import DECISIONS, bev_policy
 from kx.neat.activations import ACTIVATIONS
-from kx.neat.types import NEATError
-
-IMAGES = ("paper", "authors")
-DECISIONS = ("cells", "literal")
+from kx.neat.types import NEATError, capacity, initial_conns
+from kx.sim.observe import BEV_IMAGES
 
 
-@register
 class HyperNEATEncoding(NEATEncoding):
     name = "hyperneat"
     section = "hyperneat"
@@ -60,7 +49,7 @@ class HyperNEATEncoding(NEATEncoding):
         c = neat_params_fields(nparams)
         c.update(activations=tuple(ncfg.activation_options), output_activation=ncfg.output_activation,
                  max_hidden=ncfg.n_hidden, species_capacity=ncfg.species_capacity,
-                 extra_conns=ncfg.max_conns - ncfg.n_initial_conns, extra_genes=ncfg.genes - ncfg.n_initial_conns,
+                 extra_conns=ncfg.extra_conns, extra_genes=ncfg.extra_genes,
                  max_add_links=0, resolution=20, distance_input=True, image="authors",
                  decision="cells", substrate_activation="bipolar_sigmoid")
         return ml_collections.ConfigDict(c)
@@ -78,32 +67,31 @@ class HyperNEATEncoding(NEATEncoding):
         self.population_size = cfg.population_size
         n = dict(cfg.hyperneat)
         acts = n["activations"]
-        _need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
-                                                                       for a in acts)
-              and len(set(acts)) == len(acts), "hyperneat.activations",
-              f"distinct names from {sorted(ACTIVATIONS)}", acts)
+        need(isinstance(acts, (tuple, list)) and len(acts) >= 1 and all(isinstance(a, str) and a in ACTIVATIONS
+                                                                      for a in acts)
+             and len(set(acts)) == len(acts), "hyperneat.activations",
+             f"distinct names from {sorted(ACTIVATIONS)}", acts)
         for f in ("output_activation", "substrate_activation"):
-            _need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"hyperneat.{f}", f"one of {sorted(ACTIVATIONS)}",
-                  n[f])
-        _need(isinstance(n["image"], str) and n["image"] in IMAGES, "hyperneat.image", f"one of {IMAGES}", n["image"])
-        _need(isinstance(n["decision"], str) and n["decision"] in DECISIONS, "hyperneat.decision",
-              f"one of {DECISIONS}", n["decision"])
-        _need(isinstance(n["distance_input"], bool), "hyperneat.distance_input", "true or false", n["distance_input"])
-        _need(n["resolution"] == sim.field_size and _int(n["resolution"]), "hyperneat.resolution",
-              f"sim.field_size ({sim.field_size}): one substrate node per field cell", n["resolution"])
+            need(isinstance(n[f], str) and n[f] in ACTIVATIONS, f"hyperneat.{f}", f"one of {sorted(ACTIVATIONS)}",
+                 n[f])
+        need(isinstance(n["image"], str) and n["image"] in BEV_IMAGES, "hyperneat.image", f"one of {BEV_IMAGES}",
+             n["image"])
+        need(isinstance(n["decision"], str) and n["decision"] in DECISIONS, "hyperneat.decision",
+             f"one of {DECISIONS}", n["decision"])
+        need(isinstance(n["distance_input"], bool), "hyperneat.distance_input", "true or false", n["distance_input"])
+        need(n["resolution"] == sim.field_size and is_int(n["resolution"]), "hyperneat.resolution",
+             f"sim.field_size ({sim.field_size}): one substrate node per field cell", n["resolution"])
         self.substrate = Substrate(resolution=n["resolution"], distance_input=n["distance_input"],
                                    weight_range=float(n["weight_range"]))
         self.image, self.decision, self.substrate_activation = n["image"], n["decision"], n["substrate_activation"]
-        check_capacity(n, "hyperneat", cfg.population_size, (self.substrate.n_inputs + 1) * CPPN_OUTPUTS)
+        check_capacity(n, "hyperneat", cfg.population_size, initial_conns(self.substrate.n_inputs, CPPN_OUTPUTS))
         check_add_links(n["max_add_links"], "hyperneat", cfg.population_size,
                         f"min({presets.MAX_ADD_LINKS}, population_size)")
         opts = tuple(dict.fromkeys(tuple(acts) + (n["output_activation"],)))
         try:
             self.neat_config, _ = presets.cppn(
                 n_inputs=self.substrate.n_inputs, n_outputs=CPPN_OUTPUTS, population_size=cfg.population_size,
-                max_nodes=self.substrate.n_inputs + 1 + CPPN_OUTPUTS + n["max_hidden"],
-                max_conns=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_conns"],
-                max_genes=(self.substrate.n_inputs + 1) * CPPN_OUTPUTS + n["extra_genes"],
+                **capacity(self.substrate.n_inputs, CPPN_OUTPUTS, n["max_hidden"], n["extra_conns"], n["extra_genes"]),
                 species_capacity=n["species_capacity"], activation_options=opts,
                 hidden_activation=acts[0], output_activation=n["output_activation"],
                 # 0: the preset's 40, which suits 150 CPPNs, or a smaller population's every add-link
@@ -117,8 +105,6 @@ class HyperNEATEncoding(NEATEncoding):
         return None  # a CPPN plays every task's substrate: it carries over unchanged (or not at all)
 
     def policy_for(self, sim):
-        from kx.hyperneat.bev import bev_policy
-
         if sim.field_size != self.substrate.resolution:
             r = self.substrate.resolution
             raise ConfigError(f"task: the run's substrate has {r} x {r} nodes per layer; {sim.name}'s field is "

@@ -1,0 +1,1 @@
+"""Benchmarks, one module each: ``python -m kx.bench NAME`` (:mod:`kx.bench.__main__` lists them)."""

@@ -1,0 +1,78 @@
+"""Benchmarks: ``python -m kx.bench NAME``.
+
+Each prints its figures and ends with one line ``name: value unit (ratio X vs BASELINE)``, where the
+baseline is measured in the same run (these machines are shared and noisy).
+
+* ``sim``: live episode-steps per second (steps of episodes still running) of the batched evaluator
+  on 4500 episodes of 3v2, with the heuristic policy and with a small neural policy on the 13-input
+  layout (150 random networks x 30 trials), against the plain-Python reference on the same rules.
+* ``neat_xor``: 100 XOR runs of kx's NEAT, vectorised, against neat-python 2.0.0 (optional ``bench``
+  extra) with its standard XOR configuration, both judged by neat-python's criterion (4 - SSE >= 3.9):
+  solved runs, evaluations, hidden nodes, wall time with and without kx's compilation, and a check of
+  neat-python's first 20 runs against SPEC §2's anchor.
+* ``generation``: seconds per generation of ``python -m kx.train``'s default config, split into
+  evaluation and evolution, with the share of executed simulator steps that were live.
+* ``learning``: the validated champions of the default config (NEAT) and of HyperNEAT over 10 seeds on
+  1000 test states, beside the same budget of CMA-ES (evosax, ``configs/cma_es_3v2.py``) on a linear
+  policy of the 13/3 layout, through the same run loop; and the same 3v2 champions zero-shot on 4v3,
+  5v3 and 6v4.
+* ``hyperneat``: seconds per generation of HyperNEAT and of NEAT (3v2, 150 x 30) on the same start
+  states in one run, split into building the policies (the substrates), evaluation, evolution and
+  validation.
+* ``novelty``: the novelty hybrid's generation step (k-NN over the population and a full archive,
+  archive update, hybrid score) against evaluating the population on 30 trials.
+* ``transfer``: for NEAT and HyperNEAT over 5 seeds, the first-generation champion of a 4v3, 5v3 and 6v4
+  run seeded with a 3v2 run's final population against that of a fresh run, on the same held-out
+  test states of the target.
+* ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
+  population of 150 networks on 30 keep-away trials, over a real 3v2 run.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from kx import runtime
+from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, sim, transfer
+
+# Each benchmark is a module whose run(args) prints its figures; they import JAX inside run, after
+# kx.runtime.setup() has set up the devices.
+BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
+           "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
+           "novelty": novelty.run, "transfer": transfer.run}
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(prog="python -m kx.bench", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("name", choices=sorted(BENCHES))
+    p.add_argument("--episodes", type=int, default=4500)
+    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--reference-seconds", type=float, default=5.0)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--generations", type=int, default=20,
+                   help="neat_generation, generation, hyperneat: generations to run")
+    p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
+    p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
+    p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
+    p.add_argument("--devices", type=int, default=0,
+                   help="neat_xor: devices the runs are dealt out to (0: all; kx.runtime makes one per CPU core)")
+    p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
+    p.add_argument("--seeds", type=int, default=None,
+                   help="learning, transfer: seeds 0..N-1 of each learner (default 10 for learning, 5 for transfer)")
+    p.add_argument("--objective", default="fitness", help="transfer: the objective of the source and target runs")
+    p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
+    p.add_argument("--methods", default="NEAT,HyperNEAT,CMA-ES",
+                   help="learning: the learners to run, comma-separated (default: all three; the summary line "
+                        "needs NEAT and CMA-ES)")
+    p.add_argument("--skip", type=int, default=5,
+                   help="neat_generation, generation, hyperneat: first generations left out (they compile)")
+    args = p.parse_args(argv)
+    if args.seeds is None:
+        args.seeds = 5 if args.name == "transfer" else 10
+    runtime.setup()
+    BENCHES[args.name](args)
+
+
+if __name__ == "__main__":
+    main()
