@@ -20,6 +20,7 @@ evosax minimises; kx hands it the negated selection score.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import pathlib
 
@@ -57,31 +58,36 @@ def _unflatten(theta: jax.Array, n_in: int, n_out: int, hidden: int) -> list[jax
     return out
 
 
+@dataclasses.dataclass(frozen=True)
+class _Programs:
+    """evosax's CMA-ES of one shape and initial step size, and its jitted functions."""
+
+    es: object
+    params: object
+    init: object
+    ask: object
+    tell: object
+    init_at: object
+
+
 @functools.lru_cache(maxsize=None)
-def _es(population_size: int, dim: int):
-    """evosax's CMA-ES of one shape, one instance per process (its methods read only the shape)."""
+def _programs(population_size: int, dim: int, sigma_init: float) -> _Programs:
+    """One set of compiled programs per (population size, dimension, initial step size), shared by
+    every run of the process: a second run of the same shape compiles nothing (its keys and states are
+    traced). evosax's parameters are constants of the programs, as XLA folds them (tracing them instead
+    changes the last bits of the updates, and so every run's trajectory). evosax leaves some fields
+    weakly typed; strong types keep one program per function (and equal to what a restored checkpoint
+    holds)."""
     from evosax.algorithms import CMA_ES
 
-    return CMA_ES(population_size=population_size, solution=jnp.zeros(dim))
-
-
-# One compiled program per shape, shared by every run of the process: the step size and every other
-# parameter are traced (evosax's params pytree), so a second run of the same shape compiles nothing.
-# evosax leaves some fields weakly typed; strong types keep one program per function (and equal to
-# what a restored checkpoint holds).
-@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
-def _es_init(key, es_params, mean, std, *, population_size: int, dim: int):
-    return _strong(_es(population_size, dim).init(key, mean, es_params).replace(std=std))
-
-
-@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
-def _es_ask(key, state, es_params, *, population_size: int, dim: int):
-    return _strong(_es(population_size, dim).ask(key, state, es_params))
-
-
-@functools.partial(jax.jit, static_argnames=("population_size", "dim"))
-def _es_tell(key, population, score, state, es_params, *, population_size: int, dim: int):
-    return _strong(_es(population_size, dim).tell(key, population, -score, state, es_params))
+    es = CMA_ES(population_size=population_size, solution=jnp.zeros(dim))
+    params = es.default_params.replace(std_init=jnp.asarray(sigma_init, jnp.float32))
+    return _Programs(
+        es=es, params=params,
+        init=jax.jit(lambda key: _strong(es.init(key, jnp.zeros(dim), params))),
+        ask=jax.jit(lambda key, state: _strong(es.ask(key, state, params))),
+        tell=jax.jit(lambda key, pop, score, state: _strong(es.tell(key, pop, -score, state, params))),
+        init_at=jax.jit(lambda key, mean, std: _strong(es.init(key, mean, params).replace(std=std))))
 
 
 @functools.lru_cache(maxsize=None)
@@ -138,22 +144,20 @@ class CMAESEncoding(Encoding):
         self.hidden = c.hidden
         self.n_in, self.n_out = observe.n_inputs(self.layout, sim), observe.n_outputs(self.layout, sim)
         self.dim = n_params(self.n_in, self.n_out, self.hidden)
-        self.es = _es(cfg.population_size, self.dim)
-        self.es_params = _strong(self.es.default_params.replace(std_init=jnp.asarray(c.sigma_init, jnp.float32)))
-        self._shape = {"population_size": cfg.population_size, "dim": self.dim}
+        self._programs = _programs(cfg.population_size, self.dim, float(c.sigma_init))
+        self.es, self.es_params = self._programs.es, self._programs.params
 
     def _init_at(self, key, mean, std):
-        return _es_init(key, self.es_params, jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32),
-                        **self._shape)
+        return self._programs.init_at(key, jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32))
 
     def init(self, key):
-        return self._init_at(key, jnp.zeros(self.dim), self.es_params.std_init)
+        return self._programs.init(key)
 
     def ask(self, key, state):
-        return _es_ask(key, state, self.es_params, **self._shape)
+        return self._programs.ask(key, state)
 
     def tell(self, key, population, score, fitness, state):
-        state, _ = _es_tell(key, population, jnp.asarray(score, jnp.float32), state, self.es_params, **self._shape)
+        state, _ = self._programs.tell(key, population, jnp.asarray(score, jnp.float32), state)
         return state, {"sigma": state.std, "mean_norm": jnp.linalg.norm(state.mean)}
 
     def policy_for(self, sim):
