@@ -324,3 +324,15 @@ def test_a_bare_boolean_override_means_true_and_takes_no_option_as_its_value(run
     cfg, kw = got.pop()
     assert cfg.gif is True and cfg.method == "cma_es" and kw["overwrite"] is True
     assert not got
+
+
+def test_the_best_checkpoint_kept_is_the_earliest_of_equal_scores(tmp_path):
+    """The preservation policy keeps the checkpoint of the run's champion, which is the earliest of
+    equally validated generation champions: with validations 0.3, 0.5, 0.5, 0.2 and one latest kept,
+    the checkpoints left are 2 (not 3) and 4."""
+    import numpy as np
+
+    mgr = ckpt.manager(tmp_path / "checkpoints", keep=1)
+    for step, v in enumerate([0.3, 0.5, 0.5, 0.2], start=1):
+        ckpt.save(mgr, step, {"x": np.full((2,), step, np.float32)}, {"champion_validation": v, "generation": step})
+    assert ckpt.steps(tmp_path) == [2, 4]

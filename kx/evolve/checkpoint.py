@@ -197,7 +197,9 @@ def manager(ckpt_dir: pathlib.Path, keep: int, create: bool = True):
 
     policy = cm.AnyPreservationPolicy([
         cm.LatestN(n=keep),
-        cm.BestN(get_metric_fn=lambda m: m["champion_validation"], reverse=False, n=1),
+        # the best champion's checkpoint, the earliest on ties (as the run's champion is chosen): orbax
+        # keeps the last of a stable ascending sort, so equal scores rank by the negated step
+        cm.BestN(get_metric_fn=lambda m: (m["champion_validation"], -m.get("step", 0)), reverse=False, n=1),
     ])
     options = ocp.CheckpointManagerOptions(preservation_policy=policy, create=create,
                                            enable_async_checkpointing=False)
@@ -221,7 +223,7 @@ def save(mgr, step: int, state: RunState, meta: dict) -> None:
 
     meta = {"format": FORMAT, **meta}
     mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(meta)),
-             metrics={"champion_validation": float(meta["champion_validation"])})
+             metrics={"champion_validation": float(meta["champion_validation"]), "step": int(step)})
     mgr.wait_until_finished()
 
 
