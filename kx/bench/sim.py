@@ -88,13 +88,14 @@ def run(args) -> None:
 
     from kx.sim import evaluate as ev
     lanes = jax.tree.map(lambda a: a[..., :4096], starts)
+    n_lanes = int(lanes.done.shape[-1])  # 4096, or every episode when there are fewer
     lock = lambda: ev.lockstep(policies.heuristic(config), None, lanes, params, config,  # noqa: E731
                                key=jax.random.key(1), iterations=400)
     np.asarray(lock()[1])
     t0 = time.perf_counter()
     np.asarray(lock()[1])
-    lock_rate = 400 * 4096 / (time.perf_counter() - t0)
-    print(f"the step alone (heuristic, 4096 lanes in lockstep for 400 iterations, finished lanes included): "
+    lock_rate = 400 * n_lanes / (time.perf_counter() - t0)
+    print(f"the step alone (heuristic, {n_lanes} lanes in lockstep for 400 iterations, finished lanes included): "
           f"{lock_rate:.0f} lane-steps/s")
 
     ref_rate, ref_steps = _reference_rate(config, params, args.reference_seconds, args.seed)
