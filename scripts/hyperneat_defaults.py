@@ -48,8 +48,8 @@ def table(records: list[dict]) -> str:
         zs = {t: np.mean([r["zero_shot"][t] for r in rs]) for t in ("4v3", "5v3", "6v4")}
         p = "best" if c == best else f"{stats.ttest_ind(v, by[best], equal_var=False).pvalue:.3f}"
         sd = v.std(ddof=1) if v.size > 1 else 0.0
-        lines.append(f"| {c[0]} | {'on' if c[1] else 'off'} | {v.size} | {v.mean():.3f} ({sd:.3f}) | "
-                     f"{sd / np.sqrt(v.size):.3f} | {zs['4v3']:.3f} | {zs['5v3']:.3f} | {zs['6v4']:.3f} | {p} |")
+        lines.append(f"| {c[0]} | {'on' if c[1] else 'off'} | {v.size} | {v.mean():.4f} ({sd:.4f}) | "
+                     f"{sd / np.sqrt(v.size):.4f} | {zs['4v3']:.4f} | {zs['5v3']:.4f} | {zs['6v4']:.4f} | {p} |")
     return "\n".join(lines)
 
 
