@@ -128,19 +128,40 @@ def test_selection_follows_the_score_and_reports_follow_the_fitness():
     assert int(m_s["champion_links"]) == top_s % 8 + 1
 
 
-def test_stagnation_follows_the_score():
-    """Species 0 holds the best score; species 1's score beats its best (its fitness does not); species 2
-    holds the best fitness but its score stalled: it alone is stagnant."""
+def test_stagnation_follows_the_task_fitness_and_spares_the_top_score_and_the_fittest_genome():
+    """Records are the species' best task fitness (a quantity comparable across generations), not the
+    score. Generation 20, every species last improved at 0 with a record of 10 (species 2: 50):
+    species 0 holds the best score (20) but a stalled fitness (3): spared; species 1's fitness (11)
+    beats its record with a low score (2): improved; species 2 holds the fittest genome (12, below its
+    record 50): spared; species 3's score (11) beats 10 but its fitness (4) does not: stagnant, the
+    only one (on the score, as before, species 3 would have counted as improving and species 2 culled)."""
+    state = tagged_state([6, 6, 6, 6]).replace(
+        generation=jnp.int32(20),
+        species_best=jnp.full((CFG.species_capacity,), 10.0).at[2].set(50.0),
+        species_improved=jnp.zeros((CFG.species_capacity,), jnp.int32))
+    sp = np.asarray(state.species)
+    fitness = jnp.asarray(np.select([sp == 0, sp == 1, sp == 2], [3.0, 11.0, 12.0], 4.0), jnp.float32)
+    score = jnp.asarray(np.select([sp == 0, sp == 1, sp == 2], [20.0, 2.0, 5.0], 11.0), jnp.float32)
+    new, m = _tell(CFG)(jax.random.key(7), state.population, score, state, QUIET, fitness=fitness)
+    n_off = np.asarray(m["offspring"])[:4]
+    assert n_off[0] > 0 and n_off[1] > 0 and n_off[2] > 0 and n_off[3] == 0, n_off
+    assert int(m["stagnant_species"]) == 1 and float(m["best_fitness"]) == 12.0
+    # the records: species 1's is now its fitness 11 (not its score 2); species 0's and 2's are kept
+    assert np.asarray(new.species_best)[:3].tolist() == [10.0, 11.0, 50.0]
+
+
+def test_stagnation_on_the_fitness_alone_is_the_plain_step():
+    """Without a separate fitness, the score is the fitness: the species of the top score is spared, a
+    species whose score stalled below its record is culled."""
     state = tagged_state([8, 8, 8]).replace(
         generation=jnp.int32(20), species_best=jnp.full((CFG.species_capacity,), 10.0),
-        species_improved=jnp.zeros((CFG.species_capacity,), jnp.int32).at[0].set(20))
+        species_improved=jnp.zeros((CFG.species_capacity,), jnp.int32))
     sp = np.asarray(state.species)
-    fitness = jnp.asarray(np.select([sp == 0, sp == 1], [3.0, 1.0], 5.0), jnp.float32)
-    score = jnp.asarray(np.select([sp == 0, sp == 1], [20.0, 11.0], 5.0), jnp.float32)
-    _, m = _tell(CFG)(jax.random.key(7), state.population, score, state, QUIET, fitness=fitness)
+    score = jnp.asarray(np.select([sp == 0, sp == 1], [9.0, 11.0], 5.0), jnp.float32)
+    _, m = _tell(CFG)(jax.random.key(7), state.population, score, state, QUIET)
     n_off = np.asarray(m["offspring"])[:3]
-    assert n_off[0] > 0 and n_off[1] > 0 and n_off[2] == 0, n_off
-    assert int(m["stagnant_species"]) == 1 and float(m["best_fitness"]) == 5.0
+    assert n_off[0] == 0 and n_off[1] > 0 and n_off[2] == 0, n_off
+    assert int(m["stagnant_species"]) == 2
 
 
 # ------------------------------------------------------------------------------------------ add-link cap
