@@ -97,15 +97,27 @@ def _snapshot(run_dir):
 
 # 1. the ETA ---------------------------------------------------------------------------------------
 
-COMPILE = 5.0  # seconds the stubbed first generation of a process takes
+COMPILE = 50.0  # seconds the stubbed first generation of a process takes, on the fake clock
+LATER = 1.0  # and each later one
+
+
+class _Clock:
+    """The run loop's clock, advanced only by the stubbed generations: the ETA is exact, however busy
+    the machine (a timed assertion on the real clock failed under load)."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def perf_counter(self):
+        return self.now
 
 
 def _compiling_step(self, state):
-    """The stub, with a first generation as slow as a compiling one."""
+    """The stub, with a first generation as slow as a compiling one (on the fake clock)."""
     first = not getattr(self, "_stepped", False)
     self._stepped = True
-    seconds = COMPILE if first else 0.02
-    time.sleep(seconds)
+    seconds = COMPILE if first else LATER
+    run_lib.time.now += seconds
     res = _fake_step(self, state)
     res.row["generation_seconds"] = seconds
     return res
@@ -114,6 +126,7 @@ def _compiling_step(self, state):
 @pytest.mark.parametrize("metrics", ["deleted", "truncated"])
 def test_eta_comes_from_this_process_even_when_metrics_csv_lacks_rows(run_dir, metrics, monkeypatch):
     monkeypatch.setattr(run_lib.Trainer, "step", _compiling_step)
+    monkeypatch.setattr(run_lib, "time", _Clock())
     if metrics == "deleted":
         (run_dir / "metrics.csv").unlink()
     else:  # one row of the checkpoint's two
@@ -125,10 +138,10 @@ def test_eta_comes_from_this_process_even_when_metrics_csv_lacks_rows(run_dir, m
     gens = [line for line in logs if line.startswith("gen ")]
     assert len(gens) == 4
     # the first generation of a process compiles: no ETA until a second one has run here, and then
-    # one from the generations after the first (2 left after the second: well under the first's time)
+    # one from the generations after the first: 1 s each, 2, 1 and 0 left (the first's 50 s left out)
     assert "ETA" not in gens[0] and all("ETA" in line for line in gens[1:]), gens
     eta = [int(re.search(r"ETA (\d+) s", line).group(1)) for line in gens[1:]]
-    assert eta[0] < COMPILE and eta[-1] == 0, gens
+    assert eta == [2 * LATER, 1 * LATER, 0], gens
     written = (run_dir / "metrics.csv").read_text().splitlines()[1:]
     assert [int(r.split(",")[0]) for r in written] == ([] if metrics == "deleted" else [0]) + [2, 3, 4, 5]
 
