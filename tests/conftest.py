@@ -1,6 +1,9 @@
 import os
 
 os.environ.setdefault("KX_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "jax-cache"))
+# every program is cached, however fast it compiled: the two workers and every kx.train subprocess of
+# the suite share what one of them compiled first
+os.environ.setdefault("KX_CACHE_MIN_COMPILE_SECS", "0")
 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
@@ -10,7 +13,7 @@ import pytest  # noqa: E402
 from kx.sim.types import KeepAwayConfig, KeepAwayParams, State  # noqa: E402
 
 jax.config.update("jax_compilation_cache_dir", os.environ["KX_CACHE_DIR"])
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", float(os.environ["KX_CACHE_MIN_COMPILE_SECS"]))
 
 TASKS = ("3v2", "4v3", "5v3", "6v4")
 
