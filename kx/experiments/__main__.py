@@ -1,0 +1,95 @@
+"""Experiments: ``python -m kx.experiments {table3,report,sweep}``.
+
+    python -m kx.experiments table3 --runs 20 --out runs/table3            # the paper's protocol (SPEC section 6)
+    python -m kx.experiments table3 --runs 5 --methods neat --targets 4v3 --out runs/t3   # a part of it
+    python -m kx.experiments report runs/table3                            # report.md + PNGs from results.csv
+    python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\
+        --grid hyperneat.image=paper,authors --seeds 0-4 --out runs/image  # an ablation sweep
+
+``table3`` and ``sweep`` are resumable: run the same command again after a kill; finished runs are never
+redone, a run killed half-way resumes from its checkpoint, and the same folder accumulates parts of one
+protocol. Both write their report when they finish.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+from kx import runtime
+
+
+def _list(text: str) -> tuple[str, ...]:
+    return tuple(v for v in text.split(",") if v)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m kx.experiments", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+    t = sub.add_parser("table3", help="the paper's protocol: sources, targets, both measures, results.csv, report")
+    t.add_argument("--out", required=True, help="the protocol's folder (results.csv, report.md, runs/)")
+    t.add_argument("--runs", type=int, default=20, help="runs per cell (default 20)")
+    t.add_argument("--methods", type=_list, default=("neat", "hyperneat", "cma_es"))
+    t.add_argument("--targets", type=_list, default=("4v3", "5v3", "6v4"))
+    t.add_argument("--setups", type=_list, default=("none", "fitness", "novelty", "none_novelty"))
+    t.add_argument("--seed", type=int, default=0, help="the protocol seed (every run's seed and the test states)")
+    t.add_argument("--test-trials", type=int, default=1000)
+    t.add_argument("--source-generations", type=int, default=20)
+    t.add_argument("--target-generations", type=int, default=50)
+    t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a config override for every run (population_size=50, trials=10, ...); repeatable")
+    r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
+    r.add_argument("dir")
+    s = sub.add_parser("sweep", help="every combination of a grid x seeds")
+    s.add_argument("--config", required=True)
+    s.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2", required=True)
+    s.add_argument("--seeds", default="0-4")
+    s.add_argument("--out", required=True)
+    s.add_argument("--test-trials", type=int, default=1000)
+    s.add_argument("--test-seed", type=int, default=0)
+    s.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    args = p.parse_args(argv)
+
+    from kx.evolve.config import ConfigError
+    from kx.evolve.errors import RunError
+
+    try:
+        if args.command == "report":
+            d = pathlib.Path(args.dir)
+            if (d / "sweep.json").is_file():
+                from kx.experiments import sweep
+                print(sweep.write_report(d))
+            else:
+                from kx.experiments import report
+                print(report.write(d))
+            return 0
+        for name in ("test_trials",) + (("runs", "source_generations", "target_generations")
+                                        if args.command == "table3" else ()):
+            if getattr(args, name) < 1:
+                raise ValueError(f"--{name.replace('_', '-')}: allowed an integer >= 1, got {getattr(args, name)}")
+        if args.command == "table3":
+            from kx.experiments import report
+            from kx.experiments import table3 as t3
+            protocol = t3.Protocol(seed=args.seed, test_trials=args.test_trials,
+                                   source_generations=args.source_generations,
+                                   target_generations=args.target_generations, overrides=tuple(args.set))
+            specs = t3.plan(args.methods, args.targets, args.setups, args.runs)
+            t3.run(args.out, protocol, specs)
+            print(report.write(args.out))
+        else:
+            from kx.experiments import sweep
+            sw = sweep.Sweep(config=args.config, grid=sweep.parse_grid(args.grid), seeds=sweep.parse_seeds(args.seeds),
+                             test_trials=args.test_trials, test_seed=args.test_seed, overrides=tuple(args.set))
+            sweep.run(args.out, sw)
+            print(sweep.write_report(args.out))
+        return 0
+    except (ValueError, ConfigError, RunError) as e:
+        print(f"python -m kx.experiments {args.command}: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    runtime.setup()
+    sys.exit(main())

@@ -1,0 +1,330 @@
+"""Table 3's report, from ``DIR/results.csv`` alone: ``DIR/report.md`` and its PNGs.
+
+Nothing in it depends on where the folder lies or when it is written (no paths, no dates; the bootstrap
+has a fixed seed; matplotlib's PNGs carry no time), so regenerating it gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import pathlib
+
+import numpy as np
+
+from kx.experiments import stats
+from kx.experiments import table3 as t3
+
+#: The paper's Table 3 (mean (sd) over 20 runs, portion of the maximum hold time; SPEC section 6).
+PAPER = {
+    ("neat", "none"): ("0.438 (0.037)", "0.473 (0.052)", "0.419 (0.057)"),
+    ("hyperneat", "none"): ("0.587 (0.059)", "0.765 (0.050)", "0.533 (0.044)"),
+    ("neat", "fitness"): ("0.482 (0.059)", "0.580 (0.069)", "0.464 (0.033)"),
+    ("hyperneat", "fitness"): ("0.729 (0.089)", "0.873 (0.089)", "0.632 (0.038)"),
+    ("neat", "novelty"): ("0.545 (0.047)", "0.638 (0.0048)", "0.520 (0.036)"),
+    ("hyperneat", "novelty"): ("0.752 (0.054)", "0.943 (0.029)", "0.697 (0.032)"),
+}
+MEASURES = {"max_fitness": "the paper's measure: the maximum over the run of the generation's best 30-trial "
+                           "training fitness",
+            "test_fitness": "the run's validated champion on the protocol's test states of the target"}
+METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES"}
+ALPHA = 0.05
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _p(p: float | None) -> str:
+    if p is None or (isinstance(p, float) and math.isnan(p)):
+        return "—"
+    return "<0.0001" if p < 1e-4 else f"{p:.4f}"
+
+
+def comparisons(cells: dict) -> list[tuple[str, str, tuple, tuple]]:
+    """The pairwise tests, ``(claim, label, cell a, cell b)`` with cells ``(method, setup, target)``, for
+    the cells present: transfer vs none, hybrid vs fitness (with and without transfer), HyperNEAT vs
+    NEAT, and CMA-ES's transfer vs none."""
+    out = []
+    targets = sorted({k[2] for k in cells}, key=t3.TARGETS.index)
+    for t in targets:
+        for m in t3.METHODS:
+            for a, b, claim in (("fitness", "none", "transfer"), ("novelty", "none", "transfer"),
+                                ("novelty", "fitness", "novelty"), ("none_novelty", "none", "novelty")):
+                if (m, a, t) in cells and (m, b, t) in cells:
+                    out.append((claim, f"{METHOD_NAMES[m]} {t}: {t3.SETUPS[a].label} vs {t3.SETUPS[b].label}",
+                                (m, a, t), (m, b, t)))
+        for s in t3.SETUPS:
+            if ("hyperneat", s, t) in cells and ("neat", s, t) in cells:
+                out.append(("hyperneat", f"{t} {t3.SETUPS[s].label}: HyperNEAT vs NEAT", ("hyperneat", s, t),
+                            ("neat", s, t)))
+    return out
+
+
+def _cells(rows: list[dict], measure: str) -> dict:
+    cells = collections.defaultdict(list)
+    for r in sorted(rows, key=lambda r: int(r["run"])):
+        if r["phase"] == "target":
+            cells[(r["method"], r["setup"], r["target"])].append(float(r[measure]))
+    return {k: np.asarray(v) for k, v in cells.items()}
+
+
+def _table3(cells: dict, targets: list[str], paper: bool) -> list[str]:
+    head = "| setup | method | " + " | ".join(f"{t} ours" + (f" | {t} paper" if paper else "") for t in targets) + " |"
+    lines = [head, "|" + "---|" * (2 + len(targets) * (2 if paper else 1))]
+    for s in t3.SETUPS:
+        for m in t3.METHODS:
+            if not any((m, s, t) in cells for t in targets):
+                continue
+            row = f"| {t3.SETUPS[s].label} | {METHOD_NAMES[m]} |"
+            for t in targets:
+                v = cells.get((m, s, t))
+                ours = "—" if v is None else f"{v.mean():.3f} ({v.std(ddof=1) if v.size > 1 else 0:.3f}) n={v.size}"
+                row += f" {ours} |"
+                if paper:
+                    pv = PAPER.get((m, s))
+                    row += f" {pv[t3.TARGETS.index(t)] if pv else '—'} |"
+            lines.append(row)
+    return lines
+
+
+def _per_cell_stats(cells: dict, targets: list[str]) -> list[str]:
+    lines = ["| setup | method | target | n | mean | sd | IQM [95% CI] | Lilliefors p |",
+             "|---|---|---|---|---|---|---|---|"]
+    for s in t3.SETUPS:
+        for m in t3.METHODS:
+            for t in targets:
+                v = cells.get((m, s, t))
+                if v is None:
+                    continue
+                ci = stats.iqm_interval(v)
+                sd = v.std(ddof=1) if v.size > 1 else 0.0
+                lines.append(f"| {t3.SETUPS[s].label} | {METHOD_NAMES[m]} | {t} | {v.size} | {v.mean():.3f} | "
+                             f"{sd:.3f} | {ci.value:.3f} [{_f(ci.low)}, {_f(ci.high)}] | {_p(stats.lilliefors(v))} |")
+    return lines
+
+
+def _tests(cells: dict) -> tuple[list[str], list[dict]]:
+    comps = comparisons(cells)
+    results = []
+    for claim, label, a, b in comps:
+        c = stats.mann_whitney(cells[a], cells[b])
+        poi = stats.improvement_interval(cells[a], cells[b])
+        results.append(dict(claim=claim, label=label, a=a, b=b, c=c, poi=poi,
+                            diff=float(cells[a].mean() - cells[b].mean())))
+    adjusted = stats.holm([r["c"].p for r in results])
+    lines = ["| comparison | n | mean difference | U | p | Holm p | A (= P(improvement)) [95% CI] |",
+             "|---|---|---|---|---|---|---|"]
+    for r, h in zip(results, adjusted):
+        r["holm"] = float(h)
+        c, poi = r["c"], r["poi"]
+        lines.append(f"| {r['label']} | {c.n_a}, {c.n_b} | {r['diff']:+.3f} | {c.u:g} | {_p(c.p)} | {_p(r['holm'])} | "
+                     f"{c.a:.2f} [{_f(poi.low, 2)}, {_f(poi.high, 2)}] |")
+    return lines, results
+
+
+def efficiency(rows: list[dict]) -> list[tuple]:
+    """Per (method, target, setup): the generations the setup's mean best-so-far takes to reach the
+    no-transfer setup's final mean best-so-far (the paper's threshold), and the episodes played by
+    then, its source run's included; ``None`` if never reached."""
+    curves = collections.defaultdict(list)
+    meta = {}
+    for r in rows:
+        if r["phase"] != "target":
+            continue
+        k = (r["method"], r["target"], r["setup"])
+        curves[k].append(t3.curve(r, "best_so_far"))
+        meta[k] = (int(r["population"]) * int(r["trials"]), int(r["source_episodes"]))
+    out = []
+    order = lambda k: (t3.METHODS.index(k[0]), t3.TARGETS.index(k[1]), list(t3.SETUPS).index(k[2]))  # noqa: E731
+    for (m, t, s), cs in sorted(curves.items(), key=lambda kv: order(kv[0])):
+        base = curves.get((m, t, "none"))
+        if base is None:
+            continue
+        n = min(len(c) for c in base)
+        threshold = float(np.mean([c[n - 1] for c in base]))
+        length = min(len(c) for c in cs)
+        mean = np.mean([c[:length] for c in cs], axis=0)
+        hit = np.flatnonzero(mean >= threshold)
+        per_gen, src = meta[(m, t, s)]
+        g = int(hit[0]) + 1 if hit.size else None
+        out.append((m, t, s, threshold, g, None if g is None else g * per_gen + src))
+    return out
+
+
+def _claims(tests_by_measure: dict, eff: list[tuple]) -> list[str]:
+    lines = []
+    words = {"transfer": "Policy transfer beats evolving from scratch",
+             "novelty": "The novelty hybrid beats fitness alone",
+             "hyperneat": "HyperNEAT beats NEAT"}
+    for claim, title in words.items():
+        lines.append(f"**{title}.**")
+        for measure, results in tests_by_measure.items():
+            rs = [r for r in results if r["claim"] == claim]
+            if not rs:
+                lines.append(f"- {measure}: not measured in these runs.")
+                continue
+            up = [r for r in rs if r["holm"] < ALPHA and r["diff"] > 0]
+            down = [r for r in rs if r["holm"] < ALPHA and r["diff"] < 0]
+            verdict = ("supported" if len(up) == len(rs) else "partly supported" if up and not down
+                       else "contradicted" if down and not up else "mixed" if up and down
+                       else "not shown (no significant difference)")
+            lines.append(f"- {measure}: **{verdict}** — significant in the claimed direction in {len(up)} of {len(rs)} "
+                         f"comparisons, against it in {len(down)} (Holm-corrected p < {ALPHA}).")
+            for r in rs:
+                sig = "significant" if r["holm"] < ALPHA else "not significant"
+                lines.append(f"  - {r['label']}: difference {r['diff']:+.3f}, A = {r['c'].a:.2f}, p = {_p(r['c'].p)}, "
+                             f"Holm p = {_p(r['holm'])} ({sig}).")
+        lines.append("")
+    lines.append("**Transfer reaches the no-transfer level in fewer generations.**")
+    reached = [e for e in eff if e[2] != "none"]
+    if not reached:
+        lines.append("- not measured in these runs.")
+    for m, t, s, thr, g, ev in reached:
+        base = next((e for e in eff if e[:3] == (m, t, "none")), None)
+        g0 = base[4] if base else None
+        if g is None:
+            lines.append(f"- {METHOD_NAMES[m]} {t} {t3.SETUPS[s].label}: never reaches the threshold {thr:.3f}.")
+        else:
+            lines.append(f"- {METHOD_NAMES[m]} {t} {t3.SETUPS[s].label}: reaches {thr:.3f} in {g} generations "
+                         f"(no transfer: {g0}); {ev:,} episodes with its source's.")
+    return lines
+
+
+def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    targets = sorted({r["target"] for r in rows if r["phase"] == "target"}, key=t3.TARGETS.index)
+    methods = [m for m in t3.METHODS if any(r["method"] == m and r["phase"] == "target" for r in rows)]
+    if not targets:
+        return []
+    names = []
+    fig, axes = plt.subplots(len(methods), len(targets), figsize=(4.2 * len(targets), 3.2 * len(methods)),
+                             squeeze=False, sharey=True)
+    colours = dict(zip(t3.SETUPS, ("tab:grey", "tab:blue", "tab:red", "tab:orange")))
+    for i, m in enumerate(methods):
+        for j, t in enumerate(targets):
+            ax = axes[i][j]
+            for s in t3.SETUPS:
+                cs = [t3.curve(r, "best_so_far") for r in rows
+                      if (r["method"], r["setup"], r["target"], r["phase"]) == (m, s, t, "target")]
+                if not cs:
+                    continue
+                n = min(len(c) for c in cs)
+                mean, lo, hi = stats.mean_band([c[:n] for c in cs])
+                x = np.arange(n)
+                ax.plot(x, mean, color=colours[s], label=f"{t3.SETUPS[s].label} (n={len(cs)})")
+                ax.fill_between(x, lo, hi, color=colours[s], alpha=0.2, linewidth=0)
+            ax.set_title(f"{METHOD_NAMES[m]} {t}")
+            ax.set_xlabel("generation")
+            if j == 0:
+                ax.set_ylabel("best-so-far training fitness")
+            ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(out / "progression.png", dpi=90, metadata={"Software": None})
+    plt.close(fig)
+    names.append("progression.png")
+
+    fig, axes = plt.subplots(1, len(targets), figsize=(5.0 * len(targets), 3.6), squeeze=False)
+    for j, t in enumerate(targets):
+        ax = axes[0][j]
+        labels, data = [], []
+        for m in methods:
+            for s in t3.SETUPS:
+                v = [float(r["test_fitness"]) for r in rows
+                     if (r["method"], r["setup"], r["target"], r["phase"]) == (m, s, t, "target")]
+                if v:
+                    labels.append(f"{METHOD_NAMES[m]}\n{t3.SETUPS[s].label}")
+                    data.append(v)
+        for k, v in enumerate(data):
+            ax.scatter(np.full(len(v), k) + np.linspace(-0.15, 0.15, len(v)), v, s=12, color="tab:blue")
+            ax.hlines(np.mean(v), k - 0.3, k + 0.3, color="black")
+        ax.set_xticks(range(len(labels)), labels, fontsize=6, rotation=60, ha="right")
+        ax.set_title(f"{t}: validated champions on the test states")
+        ax.set_ylabel("test fitness")
+    fig.tight_layout()
+    fig.savefig(out / "test_champions.png", dpi=90, metadata={"Software": None})
+    plt.close(fig)
+    names.append("test_champions.png")
+    return names
+
+
+def _throughput(rows: list[dict]) -> list[str]:
+    lines = ["| method | phase | runs | mean wall s per run | mean s per generation | runs per hour | "
+             "ratio to the generations alone |", "|---|---|---|---|---|---|---|"]
+    for m in t3.METHODS:
+        for phase in ("source", "target"):
+            rs = [r for r in rows if r["method"] == m and r["phase"] == phase]
+            if not rs:
+                continue
+            wall = float(np.mean([float(r["wall_seconds"]) for r in rs]))
+            gen = float(np.mean([float(r["generation_seconds"]) for r in rs]))
+            per_gen = gen / float(np.mean([int(r["generations"]) for r in rs]))
+            lines.append(f"| {METHOD_NAMES[m]} | {phase} | {len(rs)} | {wall:.1f} | {per_gen:.2f} | "
+                         f"{3600 / wall:.1f} | {gen / wall:.2f} |")
+    return lines
+
+
+def write(out: str | pathlib.Path) -> pathlib.Path:
+    """Writes ``out/report.md`` and its PNGs from ``out/results.csv``; returns the report's path."""
+    out = pathlib.Path(out)
+    rows = t3.read_results(out / "results.csv")
+    if not rows:
+        raise t3.RunError(f"{out / 'results.csv'}: no finished runs to report")
+    rows = sorted(rows, key=lambda r: (t3.METHODS.index(r["method"]), r["phase"], r["target"], r["setup"],
+                                       int(r["run"])))
+    targets = sorted({r["target"] for r in rows if r["phase"] == "target"}, key=t3.TARGETS.index)
+    first = rows[0]
+    src = [r for r in rows if r["phase"] == "source"]
+    tgt = [r for r in rows if r["phase"] == "target"]
+    md = ["# Table 3: policy transfer and novelty search in keep-away (kx)", "",
+          f"Generated by `python -m kx.experiments report` from `results.csv` alone: {len(tgt)} target runs and "
+          f"{len(src)} source runs, protocol seed {first['protocol_seed']}; every target run's validated champion "
+          f"played the same {first['test_trials']} test states of its target.", ""]
+    gens = sorted({(r["method"], r["phase"], int(r["generations"]), int(r["population"]), int(r["trials"]))
+                   for r in rows}, key=lambda g: (t3.METHODS.index(g[0]), g[1:]))
+    md += ["Runs (method, phase: generations x population x trials):", ""]
+    md += [f"- {METHOD_NAMES[m]} {p}: {g} x {pop} x {tr} = {g * pop * tr:,} episodes" for m, p, g, pop, tr in gens]
+    md += ["", "Fitness is the portion of the maximum episode length (4500 grid iterations) the keepers hold the ball. "
+           "The paper's numbers come from another simulator (its fitness is seconds held over a cap): compare "
+           "orderings and significance, not values.", ""]
+    tests_by_measure = {}
+    for measure, what in MEASURES.items():
+        cells = _cells(rows, measure)
+        md += [f"## Table 3 on {measure}", "", f"Mean (sd) over runs per cell; {what}.", ""]
+        md += _table3(cells, targets, paper=(measure == "max_fitness"))
+        md += ["", f"### Per cell ({measure}): IQM with a 95% bootstrap CI, Lilliefors normality", ""]
+        md += _per_cell_stats(cells, targets)
+        lines, results = _tests(cells)
+        tests_by_measure[measure] = results
+        md += ["", f"### Two-sided Mann-Whitney U tests ({measure})", "",
+               "A: the Vargha-Delaney effect size, the probability that a run of the first setup beats one of the "
+               "second (ties half; 0.5 no effect), which for one task is also Agarwal et al.'s probability of "
+               "improvement; its 95% CI by bootstrap. Holm's correction over this table's comparisons.", ""]
+        md += lines + [""]
+    eff = efficiency(rows)
+    md += ["## Efficiency", "", "The generations a setup's mean best-so-far training fitness takes to reach the "
+           "no-transfer setup's final mean best-so-far (the paper's threshold), and the episodes played by then, "
+           "its source run's included.", "",
+           "| method | target | setup | threshold | generations | episodes |", "|---|---|---|---|---|---|"]
+    for m, t, s, thr, g, ev in eff:
+        md.append(f"| {METHOD_NAMES[m]} | {t} | {t3.SETUPS[s].label} | {thr:.3f} | {'never' if g is None else g} | "
+                  f"{'—' if ev is None else f'{ev:,}'} |")
+    md += ["", "## The paper's claims on these runs", ""] + _claims(tests_by_measure, eff)
+    names = _plots(rows, out)
+    md += ["## Plots", ""]
+    md += [f"![{n}]({n})" for n in names]
+    md += ["", "## Cost", "", "Wall time per run (compilation, validation, checkpoints and the test included) "
+           "against the sum of its generations' own times, both measured in the protocol's process.", ""]
+    md += _throughput(rows)
+    md += ["", "Statistics: scipy (Mann-Whitney U, bootstrap), statsmodels (Lilliefors, Holm). The `rliable` library "
+           "does not install with kx's pinned stack (arch 7.2.0, which rliable 1.2.0 requires, fails to import "
+           f"with pandas 3), so the IQM and probability-of-improvement intervals are scipy's percentile bootstrap "
+           f"({stats.RESAMPLES} resamples, seed {stats.BOOTSTRAP_SEED}) over the runs of a cell (for one task, "
+           "the stratified bootstrap).", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(md))
+    return path

@@ -1,0 +1,204 @@
+"""Ablation sweeps: every combination of a grid of config fields x seeds, on the run loop of ``kx.train``.
+
+``python -m kx.experiments sweep --config F --grid field=v1,v2 [--grid ...] --seeds 0-9 --out DIR`` trains
+one run per (combination, seed) in ``DIR/runs/<combination>/seed<k>`` (resumed from its checkpoint if the
+sweep was killed, never redone once finished), plays each run's validated champion on the same
+``test_trials`` test states of its task (the test stream of ``test_seed``), and appends one row per run
+to ``DIR/results.csv``; ``DIR/report.md`` and ``DIR/sweep.png`` are written from it alone.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import itertools
+import json
+import os
+import pathlib
+import time
+from typing import Callable
+
+import numpy as np
+
+from kx.evolve import config as cfg_lib
+from kx.evolve import protocol as evolve_protocol
+from kx.evolve import report as run_report
+from kx.evolve import run as run_lib
+from kx.evolve import streams
+from kx.evolve.errors import RunError
+from kx.experiments import stats
+
+FIELDS = ("combination", "overrides", "seed", "task", "method", "generations", "episodes", "max_fitness",
+          "test_fitness", "test_trials", "test_seed", "champion_generation", "wall_seconds")
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    config: str  # the config file, as given
+    grid: tuple[tuple[str, tuple[str, ...]], ...]  # (field, values) in the given order
+    seeds: tuple[int, ...]
+    test_trials: int = 1000
+    test_seed: int = 0
+    overrides: tuple[str, ...] = ()  # fixed overrides applied to every run
+
+    def to_json(self) -> dict:
+        return {"config": self.config, "grid": [[f, list(v)] for f, v in self.grid], "seeds": list(self.seeds),
+                "test_trials": self.test_trials, "test_seed": self.test_seed, "overrides": list(self.overrides)}
+
+    def combinations(self) -> list[tuple[str, ...]]:
+        """Every combination's overrides (``field=value`` per grid field), the first field varying slowest."""
+        return [tuple(f"{f}={v}" for f, v in zip([f for f, _ in self.grid], vs))
+                for vs in itertools.product(*[v for _, v in self.grid])]
+
+
+def parse_grid(items) -> tuple[tuple[str, tuple[str, ...]], ...]:
+    out = []
+    for item in items:
+        field, sep, values = item.partition("=")
+        vals = tuple(v for v in values.split(",") if v)
+        if not sep or not field or not vals:
+            raise ValueError(f"--grid: allowed field=value1,value2,..., got {item!r}")
+        if field in [f for f, _ in out]:
+            raise ValueError(f"--grid: {field} given twice")
+        out.append((field, vals))
+    if not out:
+        raise ValueError("--grid: at least one field=value1,value2,...")
+    return tuple(out)
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """``0-9``, ``0,3,5`` or ``0-2,7``."""
+    seeds = []
+    try:
+        for part in text.split(","):
+            lo, sep, hi = part.partition("-")
+            seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
+    except ValueError:
+        raise ValueError(f"--seeds: allowed integers and ranges like 0-9 or 0,3,5, got {text!r}") from None
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise ValueError(f"--seeds: allowed distinct integers >= 0, got {text!r}")
+    return tuple(seeds)
+
+
+def slug(combination: tuple[str, ...]) -> str:
+    return "_".join(c.replace("=", "-").replace("/", "-").replace(".", "-") for c in combination)
+
+
+def _config(sweep: Sweep, combination: tuple[str, ...], seed: int):
+    return cfg_lib.load(sweep.config, [*sweep.overrides, *combination, "gif=false", f"seed={seed}"])
+
+
+def _write(path: pathlib.Path, rows: list[dict]) -> None:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: format(r[k], ".9g") if isinstance(r[k], float) else r[k] for k in FIELDS})
+    tmp = path.with_suffix(".csv.tmp")
+    with tmp.open("w", newline="") as f:
+        f.write(buf.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def read_results(path: pathlib.Path) -> list[dict]:
+    if not pathlib.Path(path).is_file():
+        return []
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        if tuple(reader.fieldnames or ()) != FIELDS:
+            raise RunError(f"{path}: not a kx sweep results file (columns {reader.fieldnames})")
+        return list(reader)
+
+
+def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print) -> list[dict]:
+    """Runs every (combination, seed) not yet in ``out/results.csv``; returns all rows."""
+    out = pathlib.Path(out).absolute()
+    combos = sweep.combinations()
+    for c in combos:  # every config checked before any compute
+        cfg_lib.validate(_config(sweep, c, sweep.seeds[0]))
+    out.mkdir(parents=True, exist_ok=True)
+    spec_path = out / "sweep.json"
+    if spec_path.is_file():
+        have = json.loads(spec_path.read_text())
+        if have != sweep.to_json():
+            diff = [k for k in have if have[k] != sweep.to_json().get(k)]
+            raise RunError(f"{out} holds another sweep (differs in {', '.join(diff)}): use another --out")
+    else:
+        run_report.write_json(spec_path, sweep.to_json())
+    rows = read_results(out / "results.csv")
+    done = {(r["combination"], int(r["seed"])) for r in rows}
+    todo = [(c, s) for c in combos for s in sweep.seeds if (slug(c), s) not in done]
+    total = len(combos) * len(sweep.seeds)
+    log(f"kx sweep: {total} runs, {total - len(todo)} done, {len(todo)} to run -> {out}")
+    for k, (c, seed) in enumerate(todo):
+        cfg = _config(sweep, c, seed)
+        d = out / "runs" / slug(c) / f"seed{seed}"
+        prefix = f"[{total - len(todo) + k}/{total} runs | {' '.join(c)} seed {seed}]"
+        t0 = time.perf_counter()
+        run_lib.train(cfg, d, resume=(d / "config.json").is_file(),
+                      log=lambda s: log(f"{prefix} {s.split('  ')[0]}") if s.startswith("gen ") else None)
+        trainer, _, state, _ = run_lib.restore(d)
+        keys = streams.test(sweep.test_seed)
+        starts = evolve_protocol.held_out_states(trainer, keys, sweep.test_trials)
+        test = evolve_protocol.fitness_on(trainer, state.champion, starts, keys.eval)
+        with (d / "metrics.csv").open() as f:
+            best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
+        rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,
+                     "method": cfg.method, "generations": cfg.generations,
+                     "episodes": cfg.generations * cfg.population_size * cfg.trials, "max_fitness": best,
+                     "test_fitness": test, "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
+                     "champion_generation": int(state.champion_generation),
+                     "wall_seconds": round(time.perf_counter() - t0, 3)})
+        _write(out / "results.csv", rows)
+        log(f"{prefix} test {test:.4f}, max fitness {best:.4f}")
+    return rows
+
+
+def write_report(out: str | pathlib.Path) -> pathlib.Path:
+    """``out/report.md`` (one table: per combination the validated champions on the test states, mean, sd,
+    IQM with its 95% bootstrap CI) and ``out/sweep.png``, from ``out/results.csv`` alone."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = pathlib.Path(out)
+    rows = read_results(out / "results.csv")
+    if not rows:
+        raise RunError(f"{out / 'results.csv'}: no finished runs to report")
+    order = list(dict.fromkeys(r["combination"] for r in rows))  # the order the sweep ran them
+    by = {c: [r for r in rows if r["combination"] == c] for c in order}
+    first = rows[0]
+    md = ["# Sweep", "", f"Generated by `python -m kx.experiments report` from `results.csv` alone: {len(rows)} runs "
+          f"of {first['method']} in {first['task']}; each run's validated champion played the same "
+          f"{first['test_trials']} test states (test seed {first['test_seed']}).", "",
+          "| overrides | runs | seeds | test mean | sd | IQM [95% CI] | max training fitness (mean) | "
+          "episodes per run |",
+          "|---|---|---|---|---|---|---|---|"]
+    data = []
+    for c in order:
+        rs = sorted(by[c], key=lambda r: int(r["seed"]))
+        v = np.asarray([float(r["test_fitness"]) for r in rs])
+        data.append(v)
+        ci = stats.iqm_interval(v)
+        lo = "—" if np.isnan(ci.low) else f"{ci.low:.3f}"
+        hi = "—" if np.isnan(ci.high) else f"{ci.high:.3f}"
+        md.append(f"| {rs[0]['overrides']} | {len(rs)} | {','.join(r['seed'] for r in rs)} | {v.mean():.4f} | "
+                  f"{v.std(ddof=1) if v.size > 1 else 0:.4f} | {ci.value:.4f} [{lo}, {hi}] | "
+                  f"{np.mean([float(r['max_fitness']) for r in rs]):.4f} | {rs[0]['episodes']} |")
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.3 * len(order)), 3.6))
+    for k, v in enumerate(data):
+        ax.scatter(np.full(v.size, k) + np.linspace(-0.15, 0.15, v.size), v, s=14, color="tab:blue")
+        ax.hlines(v.mean(), k - 0.3, k + 0.3, color="black")
+    ax.set_xticks(range(len(order)), [by[c][0]["overrides"].replace(" ", "\n") for c in order], fontsize=6)
+    ax.set_ylabel("validated champion, test fitness")
+    fig.tight_layout()
+    fig.savefig(out / "sweep.png", dpi=90, metadata={"Software": None})
+    plt.close(fig)
+    md += ["", "![sweep.png](sweep.png)", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(md))
+    return path

@@ -1,0 +1,219 @@
+"""``kx.experiments``: Table 3's statistics against scipy, statsmodels and hand-computed values; a tiny
+protocol interrupted mid-way that resumes and redoes no finished run; distinct per-run seeds; a report
+that regenerates byte for byte wherever its folder lies; a 2 x 2 x 2 sweep and its table."""
+
+import csv
+import math
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+import scipy.stats
+import statsmodels.stats.diagnostic
+import statsmodels.stats.multitest
+
+from kx.evolve import checkpoint as ckpt
+from kx.experiments import __main__ as cli
+from kx.experiments import report, stats, sweep
+from kx.experiments import table3 as t3
+
+# the small run config the other run tests use (test_transfer.py): its programs are compiled once
+SMALL = ("population_size=12", "trials=2", "validation_trials=4", "sim.max_iterations=60", "checkpoint_every=1")
+
+
+# ------------------------------------------------------------------------------------------------ statistics
+
+def test_mann_whitney_and_the_effect_size_against_hand_computed_values_and_scipy():
+    # no overlap, 3 against 3: U = 0, and the exact two-sided p is 2 / C(6, 3) = 0.1
+    c = stats.mann_whitney([1.0, 2.0, 3.0], [4.0, 5.0, 6.0])
+    assert (c.u, c.a, c.n_a, c.n_b) == (0.0, 0.0, 3, 3) and c.p == pytest.approx(0.1)
+    # A by hand: 1 beats 0 (1), 2 beats 0 (1), each 3 ties 3 and beats 0 (1.5 twice): 5 of 8 pairs
+    assert stats.vargha_delaney([1, 2, 3, 3], [3, 0]) == 0.625
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        a, b = rng.normal(0.5, 0.1, 9).round(2), rng.normal(0.55, 0.1, 11).round(2)  # rounded: ties
+        c = stats.mann_whitney(a, b)
+        ref = scipy.stats.mannwhitneyu(a, b, alternative="two-sided")
+        assert c.u == ref.statistic and c.p == ref.pvalue
+        assert c.a == pytest.approx(ref.statistic / (a.size * b.size))  # A = U / (n_a n_b)
+        assert stats.vargha_delaney(b, a) == pytest.approx(1 - c.a)
+    # every value equal: no evidence either way (scipy would divide by a zero variance)
+    assert stats.mann_whitney([0.3, 0.3], [0.3, 0.3, 0.3]).p == 1.0
+    with pytest.raises(ValueError, match="finite"):
+        stats.mann_whitney([0.1, math.nan], [0.2])
+
+
+def test_holm_against_hand_computed_values_and_statsmodels():
+    # sorted 0.01, 0.03, 0.04, 0.2 times 4, 3, 2, 1 = 0.04, 0.09, 0.08 -> 0.09 (monotone), 0.2
+    np.testing.assert_allclose(stats.holm([0.01, 0.04, 0.03, 0.2]), [0.04, 0.09, 0.09, 0.2])
+    np.testing.assert_allclose(stats.holm([0.5, 0.6]), [1.0, 1.0])  # capped at 1
+    p = np.random.default_rng(1).uniform(0, 0.2, 12)
+    np.testing.assert_allclose(stats.holm(p), statsmodels.stats.multitest.multipletests(p, method="holm")[1])
+
+
+def test_lilliefors_is_statsmodels_on_the_hand_computed_statistic():
+    x = np.array([0.41, 0.45, 0.38, 0.52, 0.47, 0.44, 0.61, 0.39, 0.43, 0.50])
+    # the statistic by hand: the largest gap between the empirical CDF and the fitted normal's
+    z = np.sort((x - x.mean()) / x.std(ddof=1))
+    n = x.size
+    cdf = scipy.stats.norm.cdf(z)
+    d = max((np.arange(1, n + 1) / n - cdf).max(), (cdf - np.arange(n) / n).max())
+    stat, p = statsmodels.stats.diagnostic.lilliefors(x, dist="norm", pvalmethod="table")
+    assert stat == pytest.approx(d)
+    assert stats.lilliefors(x) == p and 0 < p <= 1
+    assert stats.lilliefors([0.1, 0.2, 0.3]) is None and stats.lilliefors([0.2] * 6) is None
+
+
+def test_iqm_and_the_bootstrap_intervals():
+    assert stats.iqm(np.arange(1.0, 9.0)) == 4.5  # the middle half of 1..8: 3, 4, 5, 6
+    x = np.random.default_rng(2).normal(0.5, 0.1, 10)
+    ci = stats.iqm_interval(x)
+    ref = scipy.stats.bootstrap((x,), lambda s, axis=-1: scipy.stats.trim_mean(s, 0.25, axis=axis),
+                                n_resamples=stats.RESAMPLES, method="percentile",
+                                rng=np.random.default_rng(stats.BOOTSTRAP_SEED))
+    assert (ci.low, ci.high) == (ref.confidence_interval.low, ref.confidence_interval.high)
+    assert ci.low < ci.value < ci.high and stats.iqm_interval(x) == ci  # the same again: seeded
+    poi = stats.improvement_interval(x + 0.05, x)
+    assert poi.value == stats.vargha_delaney(x + 0.05, x) and poi.low <= poi.value <= poi.high
+    assert math.isnan(stats.iqm_interval([0.4]).low)  # one run: no interval
+    mean, lo, hi = stats.mean_band([[0.0, 1.0], [2.0, 3.0]])
+    half = scipy.stats.t.ppf(0.975, 1) * math.sqrt(2) / math.sqrt(2)
+    np.testing.assert_allclose(mean, [1.0, 2.0])
+    np.testing.assert_allclose(hi - mean, [half, half])
+
+
+# ------------------------------------------------------------------------------------------------- protocol
+
+def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their_own_source():
+    specs = t3.plan(runs=20)
+    sources = [s for s in specs if s.phase == "source"]
+    # 20 x (NEAT, HyperNEAT: 2 sources + 3 targets x 4 setups; CMA-ES: 1 source + 3 targets x 2 setups)
+    assert len(specs) == 20 * (2 * 14 + 7) and len(sources) == 20 * 5
+    seeds = [t3.run_seed(0, *s.key) for s in specs]
+    assert len(set(seeds)) == len(seeds)
+    assert not set(seeds) & {t3.run_seed(1, *s.key) for s in specs}  # another protocol seed: other runs
+    for s in specs:
+        src = t3.source_of(s)
+        if s.phase == "target" and s.setup in ("fitness", "novelty"):
+            want = (s.method, s.run, "source", t3.SETUPS[s.setup].objective)
+            assert (src.method, src.run, src.phase, src.setup) == want
+            assert src in specs[: specs.index(s)]  # a source runs before its targets
+        else:
+            assert src is None
+    for field, bad in (("--methods", dict(methods=("neat", "sarsa"))), ("--targets", dict(targets=("7v5",))),
+                       ("--setups", dict(setups=("transfer",))), ("--runs", dict(runs=0))):
+        with pytest.raises(ValueError, match=field):
+            t3.plan(**bad)
+
+
+def test_cma_es_budget_in_evaluations_equals_neats(tmp_path):
+    p = t3.Protocol(source_generations=20, target_generations=50)
+    neat = t3.config(p, t3.RunSpec("neat", "none", "target", "4v3", 0), tmp_path)
+    cma = t3.config(p, t3.RunSpec("cma_es", "none", "target", "4v3", 0), tmp_path)
+    src = t3.config(p, t3.RunSpec("cma_es", "fitness", "source", "3v2", 0), tmp_path)
+    assert neat.generations * neat.population_size == cma.generations * cma.population_size == 150 * 50
+    assert src.generations * src.population_size == 150 * 20 and cma.trials == neat.trials == 30
+
+
+class _Interrupt(Exception):
+    pass
+
+
+def _tiny(tmp_path, log):
+    protocol = t3.Protocol(seed=3, test_trials=8, source_generations=2, target_generations=2, overrides=SMALL)
+    specs = t3.plan(("neat",), ("4v3",), ("none", "fitness"), runs=2)
+    return t3.run(tmp_path / "t3", protocol, specs, log=log)
+
+
+def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(tmp_path):
+    # killed during its fourth run (run 1's source): after its first checkpoint, before its second
+    seen = []
+
+    def dying(line):
+        seen.append(line)
+        if "[3/6 runs | neat 3v2 source (fitness) run 1] gen 2/2" in line:
+            raise _Interrupt
+
+    with pytest.raises(_Interrupt):
+        _tiny(tmp_path, dying)
+    out = tmp_path / "t3"
+    first = t3.read_results(out / "results.csv")
+    assert [(r["setup"], r["phase"], r["run"]) for r in first] == [("fitness", "source", "0"), ("none", "target", "0"),
+                                                                   ("fitness", "target", "0")]
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "runs").rglob("*") if p.is_file() and "run00" in str(p)}
+    killed = t3.run_dir(out, t3.RunSpec("neat", "fitness", "source", "3v2", 1))
+    assert ckpt.steps(killed) == [1]
+    lines = []
+    rows = _tiny(tmp_path, lines.append)
+    assert lines[0].startswith("kx table3: 6 runs, 3 done, 3 to run")
+    assert any("source (fitness) run 1: seed" in ln and ln.endswith("(resumed)") for ln in lines)
+    assert not any("run 0" in ln for ln in lines[1:])  # nothing of a finished run ran again
+    assert stamps == {p: p.stat().st_mtime_ns for p in stamps}  # ... nor was a file of one touched
+    assert [t3.row_key(r) for r in rows] == [t3.row_key(r) for r in t3.read_results(out / "results.csv")]
+    assert len({t3.row_key(r) for r in rows}) == 6 and all(r["phase"] == "target" or r["target"] == "3v2" for r in rows)
+    for r in rows:
+        assert len(t3.curve(r, "best_so_far")) == 2 and 0 <= float(r["test_fitness"]) <= 1
+        assert int(r["seed"]) == t3.run_seed(3, r["method"], r["setup"], r["phase"], r["target"], int(r["run"]))
+        if r["setup"] == "fitness" and r["phase"] == "target":
+            assert int(r["source_seed"]) == int(next(s["seed"] for s in rows if s["phase"] == "source"
+                                                     and s["run"] == r["run"]))
+            assert int(r["source_episodes"]) == 2 * 12 * 2
+    # a third call has nothing to do; another protocol in the same folder is refused with the reason
+    again = []
+    _tiny(tmp_path, again.append)
+    assert again == ["kx table3: 6 runs, 6 done, 0 to run -> " + str(out.absolute())]
+    with pytest.raises(t3.RunError, match="target_generations: 2 in .*, 3 now"):
+        t3.run(out, t3.Protocol(seed=3, test_trials=8, source_generations=2, target_generations=3, overrides=SMALL),
+               t3.plan(("neat",), ("4v3",), ("none",), runs=1), log=lambda s: None)
+
+    # the report, from results.csv alone, regenerates byte for byte, in another folder too
+    report.write(out)
+    moved = tmp_path / "elsewhere"
+    moved.mkdir()
+    shutil.copy(out / "results.csv", moved / "results.csv")
+    report.write(moved)
+    names = ("report.md", "progression.png", "test_champions.png")
+    before = {n: (out / n).read_bytes() for n in names}
+    report.write(out)
+    for n in names:
+        assert (out / n).read_bytes() == before[n] == (moved / n).read_bytes(), n
+    md = before["report.md"].decode()
+    assert "| Fitness transfer | NEAT |" in md and "0.482 (0.059)" in md  # ours beside the paper's
+    assert "NEAT 4v3: Fitness transfer vs No transfer" in md and "Policy transfer beats evolving from scratch" in md
+    assert str(tmp_path) not in md
+
+
+def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
+    for argv, want in ((["table3", "--out", str(tmp_path / "a"), "--methods", "neat,sarsa"], "--methods: allowed neat"),
+                       (["table3", "--out", str(tmp_path / "a"), "--runs", "0"], "--runs: allowed an integer >= 1"),
+                       (["table3", "--out", str(tmp_path / "a"), "--set", "population_size=1"], "population_size"),
+                       (["sweep", "--config", "configs/neat_3v2.py", "--grid", "neat.add_node_prob",
+                         "--out", str(tmp_path / "s")], "--grid: allowed field=value1,value2"),
+                       (["sweep", "--config", "configs/neat_3v2.py", "--grid", "trials=2,3", "--seeds", "3-x",
+                         "--out", str(tmp_path / "s")], "--seeds: allowed"),
+                       (["report", str(tmp_path / "nothing")], "no finished runs")):
+        assert cli.main(argv) == 2
+        assert want in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "s").exists()
+
+
+def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
+    sw = sweep.Sweep(config="configs/neat_3v2.py", grid=sweep.parse_grid(["neat.add_node_prob=0.03,0.2",
+                                                                          "neat.add_link_prob=0.05,0.3"]),
+                     seeds=sweep.parse_seeds("0-1"), test_trials=8, overrides=(*SMALL, "generations=1"))
+    rows = sweep.run(tmp_path / "sw", sw, log=lambda s: None)
+    assert len(rows) == 8 and len({(r["combination"], r["seed"]) for r in rows}) == 8
+    path = sweep.write_report(tmp_path / "sw")
+    table = [line for line in path.read_text().splitlines() if line.startswith("| neat.")]
+    assert [line.split(" | ")[0] for line in table] == [
+        "| neat.add_node_prob=0.03 neat.add_link_prob=0.05", "| neat.add_node_prob=0.03 neat.add_link_prob=0.3",
+        "| neat.add_node_prob=0.2 neat.add_link_prob=0.05", "| neat.add_node_prob=0.2 neat.add_link_prob=0.3"]
+    for line, combo in zip(table, sw.combinations()):
+        tests = [float(r["test_fitness"]) for r in rows if r["overrides"] == " ".join(combo)]
+        assert line.split(" | ")[1:4] == ["2", "0,1", f"{np.mean(tests):.4f}"]
+    with (tmp_path / "sw" / "results.csv").open() as f:
+        assert len(list(csv.DictReader(f))) == 8
+    assert (tmp_path / "sw" / "sweep.png").stat().st_size > 1000
+    assert sweep.parse_seeds("0-2,7") == (0, 1, 2, 7)
+    assert pathlib.Path(path).name == "report.md"
