@@ -62,7 +62,7 @@ def np_tree(state):
 
 # Files that take longest come first (measured, cold cache), so that `--dist loadfile` hands them out
 # before the short ones and both workers end together; the order within a file is kept.
-LONGEST_FIRST = ("test_train_hyperneat.py", "test_transfer.py", "test_train.py", "test_neat.py",
+LONGEST_FIRST = ("test_train_hyperneat.py", "test_transfer.py", "test_train.py", "test_experiments.py", "test_neat.py",
                  "test_shared_tables.py", "test_run_loop.py", "test_bev.py", "test_neat_selection.py",
                  "test_env.py", "test_cppn.py", "test_evolve.py", "test_reference.py")
 
@@ -70,3 +70,34 @@ LONGEST_FIRST = ("test_train_hyperneat.py", "test_transfer.py", "test_train.py",
 def pytest_collection_modifyitems(config, items):
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+# KX_TEST_PROFILE=FILE: per test, the seconds JAX spent tracing, lowering and compiling (cache hits apart),
+# appended to FILE as JSON lines (what the suite's time goes to; see README's Tests section)
+if os.environ.get("KX_TEST_PROFILE"):
+    import collections
+    import json
+
+    from jax import monitoring
+
+    _SPENT = collections.Counter()
+    _NAMES = {"/jax/core/compile/jaxpr_trace_duration": "trace",
+              "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
+              "/jax/core/compile/backend_compile_duration": "compile",
+              "/jax/compilation_cache/cache_retrieval_time_sec": "cache_read"}
+
+    def _listen(event, duration, **_):
+        if event in _NAMES:
+            _SPENT[_NAMES[event]] += duration
+
+    monitoring.register_event_duration_secs_listener(_listen)
+
+    @pytest.hookimpl(wrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        _SPENT.clear()
+        t0 = __import__("time").perf_counter()
+        out = yield
+        with open(os.environ["KX_TEST_PROFILE"], "a") as f:
+            f.write(json.dumps({"test": item.nodeid, "seconds": __import__("time").perf_counter() - t0,
+                                **{k: round(v, 3) for k, v in _SPENT.items()}}) + "\n")
+        return out

@@ -28,7 +28,7 @@ from kx.sim import env
 # trained run directory is built once
 REPO = pathlib.Path(__file__).resolve().parents[1]
 GENERATIONS = 6
-COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_frames=30",
+COMMON = ["--config.trials=4", "--config.sim.max_iterations=300", "--config.gif_frames=10",
           "--config.checkpoint_every=1", "--config.keep_checkpoints=2", "--config.validation_trials=40"]
 METHODS = {
     "neat": ["--config", "configs/neat_3v2.py", "--config.population_size=20", *COMMON],

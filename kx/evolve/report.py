@@ -67,14 +67,14 @@ def append_row(path: pathlib.Path, row: dict, fields) -> None:
         os.fsync(f.fileno())
 
 
-def _fmt_seconds(s: float) -> str:
+def format_seconds(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
 
 
 def progress_line(row: dict, total: int, eta: float | None, encoding=None) -> str:
     """Generation, best / mean / median training fitness, the validated champion, the encoding's own
     figures (species for NEAT, step size for CMA-ES), the live share of lane-steps and the time."""
-    eta_text = "" if eta is None else f"  ETA {_fmt_seconds(eta)}"
+    eta_text = "" if eta is None else f"  ETA {format_seconds(eta)}"
     own = encoding.progress(row) if encoding is not None else ""
     if "mean_novelty" in row:  # the novelty hybrid's figures
         nov = (f"novelty {float(row['mean_novelty']):.3f}  archive {int(row['archive_size'])} "

@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
     r.add_argument("dir")
     s = sub.add_parser("sweep", help="every combination of a grid x seeds")
-    s.add_argument("--config", required=True)
+    s.add_argument("--config", default=None, help="the config file (or a --grid config=FILE1,FILE2 dimension)")
     s.add_argument("--grid", action="append", default=[], metavar="FIELD=V1,V2", required=True)
     s.add_argument("--seeds", default="0-4")
     s.add_argument("--out", required=True)

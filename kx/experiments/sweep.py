@@ -4,7 +4,8 @@
 one run per (combination, seed) in ``DIR/runs/<combination>/seed<k>`` (resumed from its checkpoint if the
 sweep was killed, never redone once finished), plays each run's validated champion on the same
 ``test_trials`` test states of its task (the test stream of ``test_seed``), and appends one row per run
-to ``DIR/results.csv``; ``DIR/report.md`` and ``DIR/sweep.png`` are written from it alone.
+to ``DIR/results.csv``; ``DIR/report.md`` and ``DIR/sweep.png`` are written from it alone. A grid
+dimension ``config=FILE1,FILE2`` varies the config file itself (Table 2's two readings, say).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ FIELDS = ("combination", "overrides", "seed", "task", "method", "generations", "
 
 @dataclasses.dataclass(frozen=True)
 class Sweep:
-    config: str  # the config file, as given
+    config: str | None  # the config file, as given (None: the grid's ``config`` dimension names them)
     grid: tuple[tuple[str, tuple[str, ...]], ...]  # (field, values) in the given order
     seeds: tuple[int, ...]
     test_trials: int = 1000
@@ -82,11 +83,20 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def slug(combination: tuple[str, ...]) -> str:
-    return "_".join(c.replace("=", "-").replace("/", "-").replace(".", "-") for c in combination)
+    return "_".join(c.replace("=", "-").replace("/", "-").replace(".", "-") for c in combination)[:120]
 
 
 def _config(sweep: Sweep, combination: tuple[str, ...], seed: int):
-    return cfg_lib.load(sweep.config, [*sweep.overrides, *combination, "gif=false", f"seed={seed}"])
+    """The run's config: ``--config`` (or the combination's ``config=FILE``) with the fixed overrides,
+    the combination's, no GIF, and the seed."""
+    files = [c.partition("=")[2] for c in combination if c.startswith("config=")]
+    fields = [c for c in combination if not c.startswith("config=")]
+    path = files[0] if files else sweep.config
+    if path is None:
+        raise ValueError("--config: a config file, or a --grid config=FILE1,FILE2 dimension")
+    if not pathlib.Path(path).is_file():
+        raise ValueError(f"--config: {path} is not a file")
+    return cfg_lib.load(path, [*sweep.overrides, *fields, "gif=false", f"seed={seed}"])
 
 
 def _write(path: pathlib.Path, rows: list[dict]) -> None:

@@ -307,7 +307,7 @@ class _Progress:
                 self.per_gen.setdefault((spec.method, spec.target), []).append(now - self.last)
             self.last = now
             eta = self.eta(int(m.group(1)))
-            when = "" if eta is None else f"  protocol ETA {run_report._fmt_seconds(eta)}"
+            when = "" if eta is None else f"  protocol ETA {run_report.format_seconds(eta)}"
             self.log(f"[{self.done}/{self.total} runs | {spec.describe()}] gen {m.group(1)}/{m.group(2)}  "
                      f"best {m.group(3)}{when}")
         elif not text.startswith(("validation states", "kx.train:", "done:", "transfer:")):
