@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import io
 import itertools
 import json
-import os
 import pathlib
 import time
 from typing import Callable
@@ -28,7 +26,7 @@ from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
 from kx.evolve import streams
 from kx.evolve.errors import RunError
-from kx.experiments import stats
+from kx.experiments import csvfile, stats
 
 FIELDS = ("combination", "overrides", "seed", "task", "method", "generations", "episodes", "max_fitness",
           "test_fitness", "test_trials", "test_seed", "champion_generation", "wall_seconds")
@@ -99,28 +97,8 @@ def _config(sweep: Sweep, combination: tuple[str, ...], seed: int):
     return cfg_lib.load(path, [*sweep.overrides, *fields, "gif=false", f"seed={seed}"])
 
 
-def _write(path: pathlib.Path, rows: list[dict]) -> None:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: format(r[k], ".9g") if isinstance(r[k], float) else r[k] for k in FIELDS})
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def read_results(path: pathlib.Path) -> list[dict]:
-    if not pathlib.Path(path).is_file():
-        return []
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != FIELDS:
-            raise RunError(f"{path}: not a kx sweep results file (columns {reader.fieldnames})")
-        return list(reader)
+    return csvfile.read(path, FIELDS, "kx sweep results file")
 
 
 def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print) -> list[dict]:
@@ -162,7 +140,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
                      "test_fitness": test, "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
                      "champion_generation": int(state.champion_generation),
                      "wall_seconds": round(time.perf_counter() - t0, 3)})
-        _write(out / "results.csv", rows)
+        csvfile.write(out / "results.csv", FIELDS, rows)
         log(f"{prefix} test {test:.4f}, max fitness {best:.4f}")
     return rows
 

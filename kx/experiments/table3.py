@@ -27,10 +27,8 @@ from __future__ import annotations
 import csv
 import dataclasses
 import hashlib
-import io
 import json
 import math
-import os
 import pathlib
 import re
 import time
@@ -44,6 +42,7 @@ from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
 from kx.evolve import streams
 from kx.evolve.errors import RunError
+from kx.experiments import csvfile
 
 METHODS = ("neat", "hyperneat", "cma_es")
 SOURCE_TASK = evolve_protocol.SOURCE_TASK
@@ -174,38 +173,9 @@ def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collectio
 
 # ---------------------------------------------------------------------------------------------- results.csv
 
-def _fmt(v) -> str:
-    if isinstance(v, float):
-        return format(v, ".9g")
-    return str(v)
-
-
 def read_results(path: pathlib.Path) -> list[dict]:
     """results.csv's rows (strings), in file order; [] when there is none."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        return []
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != FIELDS:
-            raise RunError(f"{path}: not a kx table3 results file (columns {reader.fieldnames}, "
-                           f"expected {list(FIELDS)})")
-        return list(reader)
-
-
-def _write_results(path: pathlib.Path, rows: list[dict]) -> None:
-    """Atomically (a temporary file renamed over it): a kill leaves the old file or the new one."""
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({k: _fmt(r[k]) for k in FIELDS})
-    tmp = path.with_suffix(".csv.tmp")
-    with tmp.open("w", newline="") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    return csvfile.read(path, FIELDS, "kx table3 results file")
 
 
 def row_key(row: dict) -> tuple:
@@ -346,7 +316,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
         run_lib.train(cfg, d, resume=resume, log=progress.line)
         row = measure(protocol, spec, out, time.perf_counter() - t0)
         rows.append(row)
-        _write_results(results_path, rows)
+        csvfile.write(results_path, FIELDS, rows)
         progress.finish()
         log(f"[{progress.done}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
             f"{row['test_fitness']:.4f} ({row['wall_seconds']:.0f} s)")
