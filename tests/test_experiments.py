@@ -19,6 +19,7 @@ from kx.experiments import report, stats, sweep
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
+# (test states as many as the validation states: the champion plays them with the same program)
 SMALL = ("population_size=12", "trials=2", "validation_trials=4", "sim.max_iterations=60", "checkpoint_every=1")
 
 
@@ -121,7 +122,7 @@ class _Interrupt(Exception):
 
 
 def _tiny(tmp_path, log):
-    protocol = t3.Protocol(seed=3, test_trials=8, source_generations=2, target_generations=2, overrides=SMALL)
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     specs = t3.plan(("neat",), ("4v3",), ("none", "fitness"), runs=2)
     return t3.run(tmp_path / "t3", protocol, specs, log=log)
 
@@ -164,7 +165,7 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     _tiny(tmp_path, again.append)
     assert again == ["kx table3: 6 runs, 6 done, 0 to run -> " + str(out.absolute())]
     with pytest.raises(t3.RunError, match="target_generations: 2 in .*, 3 now"):
-        t3.run(out, t3.Protocol(seed=3, test_trials=8, source_generations=2, target_generations=3, overrides=SMALL),
+        t3.run(out, t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=3, overrides=SMALL),
                t3.plan(("neat",), ("4v3",), ("none",), runs=1), log=lambda s: None)
 
     # the report, from results.csv alone, regenerates byte for byte, in another folder too
@@ -201,7 +202,7 @@ def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
 def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
     sw = sweep.Sweep(config="configs/neat_3v2.py", grid=sweep.parse_grid(["neat.add_node_prob=0.03,0.2",
                                                                           "neat.add_link_prob=0.05,0.3"]),
-                     seeds=sweep.parse_seeds("0-1"), test_trials=8, overrides=(*SMALL[:-1], "generations=1"))
+                     seeds=sweep.parse_seeds("0-1"), test_trials=4, overrides=(*SMALL[:-1], "generations=1"))
     rows = sweep.run(tmp_path / "sw", sw, log=lambda s: None)
     assert len(rows) == 8 and len({(r["combination"], r["seed"]) for r in rows}) == 8
     path = sweep.write_report(tmp_path / "sw")
