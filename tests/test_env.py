@@ -294,3 +294,25 @@ def test_kick_noise_is_uniform_and_a_function_of_trial_and_iteration():
     # the same (word, t) gives the same value in any batch shape
     np.testing.assert_array_equal(np.asarray(env.kick_noise(words[7], t[123], s_max)), draws[7, 123])
     assert np.all(np.asarray(env.kick_noise(words[:, None], t[None, :], jnp.int32(0))) == 0)
+
+
+def test_fenced_traces_its_function_once_and_gives_its_values_under_jit_and_vmap():
+    from kx.sim import ops
+
+    calls = []
+
+    def fn(a, b):
+        calls.append(1)
+        return {"sum": a + b, "pair": (a * b, b - a)}
+
+    a, b = jnp.arange(4, dtype=jnp.int32), jnp.full((4,), 3, jnp.int32)
+    fence = jax.jit(lambda a, b: ops.fenced(fn, a, b))
+    out = fence(a, b)
+    assert len(calls) == 1  # one trace: its jaxpr gives the shapes and is replayed inside the conditional
+    np.testing.assert_array_equal(out["sum"], a + b)
+    np.testing.assert_array_equal(out["pair"][0], a * b)
+    np.testing.assert_array_equal(out["pair"][1], b - a)
+    text = fence.lower(a, b).as_text()
+    assert "stablehlo.case" in text or "stablehlo.if" in text  # the boundary is a conditional
+    v = jax.vmap(lambda a, b: ops.fenced(fn, a, b))(a.reshape(2, 2), b.reshape(2, 2))
+    np.testing.assert_array_equal(v["sum"], (a + b).reshape(2, 2))

@@ -13,6 +13,7 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+from jax.extend import core as jax_core
 
 
 def col(n: int, batch_ndim: int) -> jax.Array:
@@ -58,9 +59,16 @@ def fenced(fn: Callable[..., Any], *args: Any) -> Any:
     (an x and a y) is emitted, and executed, twice. A conditional cannot be fused across; its
     predicate is always true but read at run time so that it cannot be folded away. (Under ``vmap``
     the predicate is batched, the conditional becomes a select, and only speed is lost.)
+
+    ``fn`` is traced once, to a jaxpr whose output shapes also give the never-taken branch its zeros,
+    and the conditional replays that jaxpr (tracing it a second time, as ``jax.eval_shape`` and then
+    ``lax.cond`` would, cost a sixth to a quarter of the simulator's tracing, nested fences compounding;
+    the program is the same, instruction for instruction).
     """
     leaf = jax.tree.leaves(args)[0]
     pred = jnp.ravel(leaf)[0] > jnp.iinfo(jnp.int32).min
-    shapes = jax.eval_shape(fn, *args)
-    never = lambda *_: jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)  # noqa: E731
-    return jax.lax.cond(pred, fn, never, *args)
+    closed, shapes = jax.make_jaxpr(fn, return_shape=True)(*args)
+    out_tree = jax.tree.structure(shapes)
+    taken = jax_core.jaxpr_as_fun(closed)
+    never = lambda *_: [jnp.zeros(s.shape, s.dtype) for s in jax.tree.leaves(shapes)]  # noqa: E731
+    return jax.tree.unflatten(out_tree, jax.lax.cond(pred, taken, never, *jax.tree.leaves(args)))
