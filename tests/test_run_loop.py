@@ -68,9 +68,9 @@ def toy():
 
 def _cfg(**over):
     cfg = cfg_lib.base_config(HillClimber.name)
-    cfg.update(dict(population_size=6, trials=4, generations=4, checkpoint_every=2, validation_trials=20,
-                    gif_frames=20))
-    cfg.sim.max_iterations = 200
+    cfg.update(dict(population_size=6, trials=2, generations=4, checkpoint_every=2, validation_trials=4,
+                    gif_frames=10))
+    cfg.sim.max_iterations = 60  # the trials, validation and episode length of the other run tests (SMALL)
     cfg.update(over)
     return cfg
 
@@ -155,15 +155,15 @@ def _compiles_during(fn):
         logger.removeHandler(handler)
 
 
-@pytest.mark.parametrize("method, size", [("neat", 12), ("cma_es", 8), (HillClimber.name, 7)])
+@pytest.mark.parametrize("method, size", [("neat", 12), ("cma_es", 6), (HillClimber.name, 7)])
 def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, method, size):
     """After the first generations (which compile every function, and the evaluator's batch widths
     reached so far), a generation compiles nothing it compiled before: new values of the population,
     its networks or its shared table reuse the compiled programs. A batch width reached for the first
     time compiles once (each width is a program of its own)."""
     cfg = cfg_lib.base_config(method) if method != HillClimber.name else _cfg()
-    cfg.update(dict(population_size=size, trials=4, validation_trials=20, generations=5))
-    cfg.sim.max_iterations = 200
+    cfg.update(dict(population_size=size, trials=2, validation_trials=4, generations=5))
+    cfg.sim.max_iterations = 60
     trainer = run_lib.Trainer(cfg)
     state, compiled_by_init = _compiles_during(trainer.init)
     per_generation = []
@@ -190,9 +190,9 @@ def test_a_second_run_in_the_same_process_compiles_nothing(method, objective):
     episodes reach for the first time."""
     # the shapes of the test above (NEAT and CMA-ES): the first run reuses what that test compiled
     cfg = cfg_lib.base_config(method)
-    size = {"neat": 12, "hyperneat": 12, "cma_es": 8}[method]
-    cfg.update(dict(population_size=size, trials=4, validation_trials=20, generations=2, objective=objective))
-    cfg.sim.max_iterations = 200
+    size = {"neat": 12, "hyperneat": 12, "cma_es": 6}[method]  # test_transfer.py's sizes
+    cfg.update(dict(population_size=size, trials=2, validation_trials=4, generations=2, objective=objective))
+    cfg.sim.max_iterations = 60
 
     def run(seed):
         c = ml_collections.ConfigDict(cfg.to_dict())
