@@ -41,6 +41,11 @@ def _p(p: float | None) -> str:
     return "<0.0001" if p < 1e-4 else f"{p:.4f}"
 
 
+def _sd(v: np.ndarray) -> str:
+    """The sample standard deviation, or a dash for a single run."""
+    return f"{v.std(ddof=1):.3f}" if v.size > 1 else "—"
+
+
 def comparisons(cells: dict) -> list[tuple[str, str, tuple, tuple]]:
     """The pairwise tests, ``(claim, label, cell a, cell b)`` with cells ``(method, setup, target)``, for
     the cells present: transfer vs none, hybrid vs fitness (with and without transfer), HyperNEAT vs
@@ -79,7 +84,7 @@ def _table3(cells: dict, targets: list[str], paper: bool) -> list[str]:
             row = f"| {t3.SETUPS[s].label} | {METHOD_NAMES[m]} |"
             for t in targets:
                 v = cells.get((m, s, t))
-                ours = "—" if v is None else f"{v.mean():.3f} ({v.std(ddof=1) if v.size > 1 else 0:.3f}) n={v.size}"
+                ours = "—" if v is None else f"{v.mean():.3f} ({_sd(v)}) n={v.size}"
                 row += f" {ours} |"
                 if paper:
                     pv = PAPER.get((m, s))
@@ -98,9 +103,8 @@ def _per_cell_stats(cells: dict, targets: list[str]) -> list[str]:
                 if v is None:
                     continue
                 ci = stats.iqm_interval(v)
-                sd = v.std(ddof=1) if v.size > 1 else 0.0
                 lines.append(f"| {t3.SETUPS[s].label} | {METHOD_NAMES[m]} | {t} | {v.size} | {v.mean():.3f} | "
-                             f"{sd:.3f} | {ci.value:.3f} [{_f(ci.low)}, {_f(ci.high)}] | {_p(stats.lilliefors(v))} |")
+                             f"{_sd(v)} | {ci.value:.3f} [{_f(ci.low)}, {_f(ci.high)}] | {_p(stats.lilliefors(v))} |")
     return lines
 
 
