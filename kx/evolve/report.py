@@ -29,8 +29,12 @@ def csv_fields(encoding, objective=None) -> tuple[str, ...]:
 def write_json(path: pathlib.Path, obj) -> None:
     """Atomically: a temporary file beside ``path``, flushed to disk, then renamed over it (``os.replace``),
     so a kill or a failure leaves the old file or the new one, never half of one (nor the temporary)."""
+    write_text(path, json.dumps(obj, indent=2, sort_keys=True) + "\n")  # dumps first: it may raise
+
+
+def write_text(path: pathlib.Path, text: str) -> None:
+    """``text`` to ``path`` atomically, as :func:`write_json`."""
     path = pathlib.Path(path)
-    text = json.dumps(obj, indent=2, sort_keys=True) + "\n"  # before anything is written: it may raise
     tmp = path.with_suffix(path.suffix + ".tmp")
     try:
         with tmp.open("w") as f:

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import csv
 import io
-import os
 import pathlib
 
+from kx.evolve import report as run_report
 from kx.evolve.errors import RunError
 
 
@@ -36,13 +36,4 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
     w.writeheader()
     for r in rows:
         w.writerow({k: _cell(r[k]) for k in fields})
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        with tmp.open("w", newline="") as f:
-            f.write(buf.getvalue())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    run_report.write_text(path, buf.getvalue())
