@@ -21,6 +21,7 @@ import ml_collections
 
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
+from kx.evolve import streams
 from kx.evolve.encoding import stack
 from kx.sim import env
 
@@ -96,3 +97,14 @@ def seeded_and_fresh(method: str, task: str, seed: int, source: str | pathlib.Pa
     return {arm: first_generation(target_config(method, task, seed, source if arm == "transfer" else None,
                                                 objective), keys, test_trials)
             for arm in ARMS}
+
+
+def champion_on_test(run_dir: str | pathlib.Path, test_seed: int,
+                     test_trials: int) -> tuple[run_lib.Trainer, object, float]:
+    """``(trainer, state, test fitness)`` of a finished run directory: its last checkpoint's validated
+    champion on ``test_trials`` test states of the run's task from the test stream of ``test_seed``
+    (the same states for every run given the same seed)."""
+    trainer, _, state, _ = run_lib.restore(run_dir)
+    keys = streams.test(test_seed)
+    starts = held_out_states(trainer, keys, test_trials)
+    return trainer, state, fitness_on(trainer, state.champion, starts, keys.eval)

@@ -24,7 +24,6 @@ from kx.evolve import config as cfg_lib
 from kx.evolve import protocol as evolve_protocol
 from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
-from kx.evolve import streams
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, stats
 
@@ -128,10 +127,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
         t0 = time.perf_counter()
         run_lib.train(cfg, d, resume=(d / "config.json").is_file(),
                       log=lambda s: log(f"{prefix} {' '.join(s.split()[:4])}") if s.startswith("gen ") else None)
-        trainer, _, state, _ = run_lib.restore(d)
-        keys = streams.test(sweep.test_seed)
-        starts = evolve_protocol.held_out_states(trainer, keys, sweep.test_trials)
-        test = evolve_protocol.fitness_on(trainer, state.champion, starts, keys.eval)
+        _, state, test = evolve_protocol.champion_on_test(d, sweep.test_seed, sweep.test_trials)
         with (d / "metrics.csv").open() as f:
             best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
         rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,

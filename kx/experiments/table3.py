@@ -40,7 +40,6 @@ from kx.evolve import config as cfg_lib
 from kx.evolve import protocol as evolve_protocol
 from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
-from kx.evolve import streams
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile
 
@@ -207,12 +206,9 @@ def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float) -
     """The results row of a finished run: its metrics.csv curves, and its validated champion on the
     protocol's test states of its task."""
     d = run_dir(out, spec)
-    trainer, step, state, _ = run_lib.restore(d)
+    trainer, state, test = evolve_protocol.champion_on_test(d, protocol.seed, protocol.test_trials)
     with (d / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
-    keys = streams.test(protocol.seed)
-    starts = evolve_protocol.held_out_states(trainer, keys, protocol.test_trials)
-    test = evolve_protocol.fitness_on(trainer, state.champion, starts, keys.eval)
     cfg = trainer.cfg
     src = source_of(spec)
     src_evals = 0
@@ -252,9 +248,8 @@ class _Progress:
         self.done += 1
 
     def _rate(self, method: str, task: str) -> float | None:
-        for key in ((method, task),):
-            if self.per_gen.get(key):
-                return sum(self.per_gen[key]) / len(self.per_gen[key])
+        if self.per_gen.get((method, task)):
+            return sum(self.per_gen[(method, task)]) / len(self.per_gen[(method, task)])
         same = [v for (m, _), vs in self.per_gen.items() if m == method for v in vs]
         pooled = same or [v for vs in self.per_gen.values() for v in vs]
         return sum(pooled) / len(pooled) if pooled else None
