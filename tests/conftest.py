@@ -17,6 +17,11 @@ COMPILE_FLAGS = os.environ.get("KX_TEST_XLA_FLAGS", "--xla_backend_optimization_
 if "xla_backend_optimization_level" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {COMPILE_FLAGS}".strip()
 
+# No Python traceback frames in the programs' location metadata (lowering skips collecting them; the
+# compiled code and the persistent cache's keys are the same, since the cache strips debug info): 3-5%
+# less CPU on a cold test file. Subprocesses inherit it; a user's own setting wins.
+os.environ.setdefault("JAX_TRACEBACK_IN_LOCATIONS_LIMIT", "0")
+
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
