@@ -43,6 +43,11 @@ def test_mann_whitney_and_the_effect_size_against_hand_computed_values_and_scipy
     assert stats.mann_whitney([0.3, 0.3], [0.3, 0.3, 0.3]).p == 1.0
     with pytest.raises(ValueError, match="finite"):
         stats.mann_whitney([0.1, math.nan], [0.2])
+    # the smallest p of the exact test: complete separation, 2 / C(n_a + n_b, n_a); 5 against 5: 2/252
+    assert stats.smallest_p(5, 5) == pytest.approx(2 / 252) and stats.smallest_p(1, 1) == 1.0
+    for n_a, n_b in [(3, 3), (4, 5), (5, 5), (7, 3)]:
+        ref = scipy.stats.mannwhitneyu(np.arange(n_a) + 10.0, np.arange(n_b), alternative="two-sided", method="exact")
+        assert stats.smallest_p(n_a, n_b) == pytest.approx(ref.pvalue)
 
 
 def test_holm_against_hand_computed_values_and_statsmodels():
@@ -183,6 +188,8 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     assert "| Fitness transfer | NEAT |" in md and "0.482 (0.059)" in md  # ours beside the paper's
     assert "NEAT 4v3: Fitness transfer vs No transfer" in md and "Policy transfer beats evolving from scratch" in md
     assert str(tmp_path) not in md
+    # one run per cell: the report says that no comparison can be significant, rather than "no difference"
+    assert "no comparison of this table can reach significance" in md and "not testable with these runs" in md
 
 
 def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):

@@ -127,6 +127,21 @@ def _tests(cells: dict) -> tuple[list[str], list[dict]]:
     return lines, results
 
 
+def _power(results: list[dict]) -> str:
+    """What these run counts can show at all: Holm rejects nothing unless some p is below ALPHA / k (k
+    comparisons), and the exact Mann-Whitney test's p is never below :func:`stats.smallest_p`."""
+    if not results:
+        return ""
+    k = len(results)
+    best = min(stats.smallest_p(r["c"].n_a, r["c"].n_b) for r in results)
+    can = best < ALPHA / k
+    return (f"Power: the smallest p an exact two-sided Mann-Whitney test can give with these run counts is "
+            f"{best:.4f}; Holm's correction over {k} comparisons rejects nothing unless some p is below "
+            f"{ALPHA}/{k} = {ALPHA / k:.4f}, so " + ("a difference can reach significance here." if can else
+            "**no comparison of this table can reach significance, whatever the runs show**: more runs per "
+            "cell are needed (the paper's protocol has 20)."))
+
+
 def efficiency(rows: list[dict]) -> list[tuple]:
     """Per (method, target, setup): the generations the setup's mean best-so-far takes to reach the
     no-transfer setup's final mean best-so-far (the paper's threshold), and the episodes played by
@@ -170,9 +185,11 @@ def _claims(tests_by_measure: dict, eff: list[tuple]) -> list[str]:
                 continue
             up = [r for r in rs if r["holm"] < ALPHA and r["diff"] > 0]
             down = [r for r in rs if r["holm"] < ALPHA and r["diff"] < 0]
+            reachable = min(stats.smallest_p(r["c"].n_a, r["c"].n_b) for r in results) < ALPHA / len(results)
             verdict = ("supported" if len(up) == len(rs) else "partly supported" if up and not down
                        else "contradicted" if down and not up else "mixed" if up and down
-                       else "not shown (no significant difference)")
+                       else "not shown (no significant difference)" if reachable
+                       else "not testable with these runs (too few per cell for any significance after Holm)")
             lines.append(f"- {measure}: **{verdict}** — significant in the claimed direction in {len(up)} of {len(rs)} "
                          f"comparisons, against it in {len(down)} (Holm-corrected p < {ALPHA}).")
             for r in rs:
@@ -192,7 +209,7 @@ def _claims(tests_by_measure: dict, eff: list[tuple]) -> list[str]:
         else:
             lines.append(f"- {METHOD_NAMES[m]} {t} {t3.SETUPS[s].label}: reaches {thr:.3f} in {g} generations "
                          f"(no transfer: {g0}); {ev:,} episodes with its source's.")
-    return lines
+    return lines + [""]
 
 
 def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
@@ -308,7 +325,7 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
                "A: the Vargha-Delaney effect size, the probability that a run of the first setup beats one of the "
                "second (ties half; 0.5 no effect), which for one task is also Agarwal et al.'s probability of "
                "improvement; its 95% CI by bootstrap. Holm's correction over this table's comparisons.", ""]
-        md += lines + [""]
+        md += lines + ["", _power(results), ""]
     eff = efficiency(rows)
     md += ["## Efficiency", "", "The generations a setup's mean best-so-far training fitness takes to reach the "
            "no-transfer setup's final mean best-so-far (the paper's threshold), and the episodes played by then, "

@@ -66,6 +66,15 @@ def mann_whitney(a, b) -> Comparison:
     return Comparison(x.size, y.size, float(res.statistic), float(res.pvalue), vargha_delaney(x, y))
 
 
+def smallest_p(n_a: int, n_b: int) -> float:
+    """The smallest two-sided p the exact Mann-Whitney U test can give for samples of ``n_a`` and ``n_b``
+    values: ``2 / C(n_a + n_b, n_a)``, reached when every value of one sample exceeds every value of the
+    other (no ties). It bounds what a protocol of that many runs per cell can show."""
+    if n_a < 1 or n_b < 1:
+        raise ValueError(f"both samples need values, got {n_a} and {n_b}")
+    return min(1.0, 2.0 / math.comb(n_a + n_b, n_a))
+
+
 def vargha_delaney(a, b) -> float:
     """The Vargha-Delaney A of ``a`` over ``b``: the probability that a value of ``a`` exceeds one of ``b``,
     ties counted half (``U_a / (n_a n_b)``). For one task it is also Agarwal et al.'s probability of
