@@ -14,10 +14,10 @@ run: $(STAMP)  ## the main job
 	$(PY) -m kx.train
 
 test: $(STAMP)  ## the default test suite (what CI runs)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
 
 test-slow: $(STAMP)  ## the long tests
-	$(PY) -m pytest -q -n 2 --dist loadfile -m slow
+	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder -m slow
 
 bench: $(STAMP)  ## every benchmark (neat_xor also installs the optional neat-python baseline)
 	$(PY) -m pip install -q -e '.[dev,bench]'

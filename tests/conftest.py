@@ -66,10 +66,13 @@ def np_tree(state):
 
 
 # Files that take longest come first (measured, cold cache), so that `--dist loadfile` hands them out
-# before the short ones and both workers end together; the order within a file is kept.
-LONGEST_FIRST = ("test_train_hyperneat.py", "test_transfer.py", "test_train.py", "test_experiments.py", "test_neat.py",
-                 "test_shared_tables.py", "test_run_loop.py", "test_bev.py", "test_neat_selection.py",
-                 "test_env.py", "test_cppn.py", "test_evolve.py", "test_reference.py")
+# before the short ones and both workers end together; the order within a file is kept. xdist keeps this
+# order only with `--no-loadscope-reorder` (the Makefile passes it): by default it deals files out by
+# their number of tests, which left a long file of few tests (HyperNEAT's run tests) for last.
+LONGEST_FIRST = ("test_train_hyperneat.py", "test_transfer.py", "test_neat.py", "test_bev.py", "test_shared_tables.py",
+                 "test_run_loop.py", "test_train.py", "test_env.py", "test_neat_selection.py", "test_cppn.py",
+                 "test_experiments.py", "test_evolve.py", "test_reference.py", "test_evaluate.py", "test_run_dir.py",
+                 "test_neat_readings.py", "test_substrate.py", "test_neat_mutation.py", "test_devices.py")
 
 
 def pytest_collection_modifyitems(config, items):
