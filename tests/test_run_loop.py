@@ -171,9 +171,15 @@ def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, 
         result, compiles = _compiles_during(lambda: trainer.step(state))
         state = result.state
         per_generation.append((compiled_by_init if g == 0 else []) + compiles)  # init counts as generation 0's
-    assert per_generation[0], "the log of compilations caught nothing: the test would pass vacuously"
-    seen = set()
-    for g, compiles in enumerate(per_generation):
+    # the log works (a new function compiles); generation 0 itself may compile nothing when another test
+    # of this worker compiled the same shapes first (test_transfer.py's), which is the point of the cache
+    _, probe = _compiles_during(lambda: jax.jit(lambda x: x * 2.0 + 1.0)(jnp.arange(3.0)))
+    assert probe, "the log of compilations caught nothing: the test would pass vacuously"
+    # generation 0 (init and the first step) may compile one function twice with the same argument shapes:
+    # a jitted helper with static arguments (jax.random.normal's shape, in the toy's eager init and ask)
+    # compiles once per static value, which the log does not show; after it, nothing compiles again
+    seen = set(per_generation[0])
+    for g, compiles in enumerate(per_generation[1:], 1):
         for c in compiles:
             assert c not in seen, f"generation {g} compiled {c[0]} again with the same shapes"
             seen.add(c)
