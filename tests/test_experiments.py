@@ -43,11 +43,15 @@ def test_mann_whitney_and_the_effect_size_against_hand_computed_values_and_scipy
     assert stats.mann_whitney([0.3, 0.3], [0.3, 0.3, 0.3]).p == 1.0
     with pytest.raises(ValueError, match="finite"):
         stats.mann_whitney([0.1, math.nan], [0.2])
-    # the smallest p of the exact test: complete separation, 2 / C(n_a + n_b, n_a); 5 against 5: 2/252
+    # the smallest p: complete separation; exact up to 8 a side, 2 / C(n_a + n_b, n_a) (5 against 5: 2/252)
     assert stats.smallest_p(5, 5) == pytest.approx(2 / 252) and stats.smallest_p(1, 1) == 1.0
-    for n_a, n_b in [(3, 3), (4, 5), (5, 5), (7, 3)]:
-        ref = scipy.stats.mannwhitneyu(np.arange(n_a) + 10.0, np.arange(n_b), alternative="two-sided", method="exact")
-        assert stats.smallest_p(n_a, n_b) == pytest.approx(ref.pvalue)
+    for n_a, n_b in [(3, 3), (4, 5), (7, 3), (8, 8)]:
+        assert stats.smallest_p(n_a, n_b) == pytest.approx(2 / math.comb(n_a + n_b, n_a))
+    # beyond, the normal approximation with the continuity correction: z = (n_a n_b / 2 - 0.5) / sd(U)
+    z = (10 * 10 / 2 - 0.5) / math.sqrt(10 * 10 * 21 / 12)
+    assert stats.smallest_p(10, 10) == pytest.approx(2 * scipy.stats.norm.sf(z))
+    assert stats.smallest_p(10, 10) == pytest.approx(
+        scipy.stats.mannwhitneyu(np.arange(10.0) + 10, np.arange(10.0), alternative="two-sided").pvalue)
 
 
 def test_holm_against_hand_computed_values_and_statsmodels():

@@ -127,16 +127,21 @@ def _tests(cells: dict) -> tuple[list[str], list[dict]]:
     return lines, results
 
 
+def _floors(results: list[dict]) -> tuple[list[float], int]:
+    """Each comparison's smallest possible p (:func:`stats.smallest_p`), and how many of them are below
+    Holm's first threshold ALPHA / k (k comparisons): with none, Holm rejects nothing, whatever the runs."""
+    floors = [stats.smallest_p(r["c"].n_a, r["c"].n_b) for r in results]
+    return floors, sum(f < ALPHA / len(results) for f in floors)
+
+
 def _power(results: list[dict]) -> str:
-    """What these run counts can show at all: Holm rejects nothing unless some p is below ALPHA / k (k
-    comparisons), and the exact Mann-Whitney test's p is never below :func:`stats.smallest_p`."""
+    """What these run counts can show at all (:func:`_floors`)."""
     if not results:
         return ""
     k = len(results)
-    floors = [stats.smallest_p(r["c"].n_a, r["c"].n_b) for r in results]
-    reach = sum(f < ALPHA / k for f in floors)
+    floors, reach = _floors(results)
     span = f"{min(floors):.2g}" if min(floors) == max(floors) else f"{min(floors):.2g} to {max(floors):.2g}"
-    head = (f"Power: the smallest p an exact two-sided Mann-Whitney test can give with these run counts is "
+    head = (f"Power: the smallest p the two-sided Mann-Whitney test can give with these run counts is "
             f"{span} across the comparisons; Holm's correction over {k} comparisons rejects nothing unless some p "
             f"is below {ALPHA}/{k} = {ALPHA / k:.2g}, so ")
     if not reach:
@@ -189,7 +194,7 @@ def _claims(tests_by_measure: dict, eff: list[tuple]) -> list[str]:
                 continue
             up = [r for r in rs if r["holm"] < ALPHA and r["diff"] > 0]
             down = [r for r in rs if r["holm"] < ALPHA and r["diff"] < 0]
-            reachable = min(stats.smallest_p(r["c"].n_a, r["c"].n_b) for r in results) < ALPHA / len(results)
+            reachable = _floors(results)[1] > 0
             verdict = ("supported" if len(up) == len(rs) else "partly supported" if up and not down
                        else "contradicted" if down and not up else "mixed" if up and down
                        else "not shown (no significant difference)" if reachable
