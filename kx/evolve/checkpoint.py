@@ -36,8 +36,9 @@ from flax import struct
 
 from kx.evolve.errors import RunError
 
-#: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta)
-FORMAT = 2
+#: the checkpoint format this kx writes and reads; 1 was the NEAT-only layout (no ``format`` in meta), 2
+#: had no run key in the run state (``RunState.key``)
+FORMAT = 3
 
 
 @struct.dataclass
@@ -51,6 +52,7 @@ class RunState:
     champion_generation: jax.Array  # int32 the generation it was evaluated in (-1 before any)
     generation: jax.Array  # int32 generations done
     best_so_far: jax.Array  # float32 best training fitness so far (-inf before any)
+    key: jax.Array  # uint32[2] the run key (kx.evolve.streams.run_key of the seed): every stream derives from it
 
 
 #: the lock file of a run directory (:class:`RunLock`)

@@ -62,6 +62,9 @@ class Encoding(abc.ABC):
     metric_fields: ClassVar[tuple[str, ...]] = ()
     #: the metric drawn in progress.png's lower panel (None: no panel)
     plot_field: ClassVar[str | None] = None
+    #: whether ``jax.vmap`` of ``ask`` and ``tell`` over runs computes, bit for bit, what each run computes
+    #: alone; if not, a batched group (kx.evolve.group) maps them over its runs with ``jax.lax.map``
+    vmap_exact: ClassVar[bool] = True
 
     def __init__(self, cfg: ml_collections.ConfigDict, sim: KeepAwayConfig, sim_params: KeepAwayParams):
         self.cfg, self.sim, self.sim_params = cfg, sim, sim_params

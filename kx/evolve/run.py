@@ -141,12 +141,16 @@ class Trainer:
                         champion=self.encoding.individual(population, 0),  # a placeholder until generation 1
                         champion_validation=jnp.asarray(-jnp.inf, jnp.float32),
                         champion_generation=jnp.asarray(-1, jnp.int32), generation=jnp.asarray(0, jnp.int32),
-                        best_so_far=jnp.asarray(-jnp.inf, jnp.float32))
+                        best_so_far=jnp.asarray(-jnp.inf, jnp.float32), key=streams.run_key(seed))
 
     def check(self, state: RunState) -> list[str]:
         """The encoding's invariants of a restored run state."""
         champion = state.champion if int(state.champion_generation) >= 0 else None
-        return self.encoding.check(state.learner, champion)
+        errs = []
+        if not np.array_equal(np.asarray(state.key), np.asarray(streams.run_key(self.cfg.seed))):
+            errs.append(f"the run key is {np.asarray(state.key).tolist()}, seed {self.cfg.seed}'s is "
+                        f"{np.asarray(streams.run_key(self.cfg.seed)).tolist()}")
+        return errs + self.encoding.check(state.learner, champion)
 
     def restore(self, run_dir, step: int | None = None):
         """``(step, state, meta)`` of a checkpoint of ``run_dir`` written with this config's method and shapes."""
@@ -154,7 +158,7 @@ class Trainer:
 
     def step(self, state: RunState) -> GenerationResult:
         """Evaluate generation ``state.generation``'s population, validate its champion, breed the next one."""
-        enc, seed, g = self.encoding, self.cfg.seed, int(state.generation)
+        enc, seed, g = self.encoding, state.key, int(state.generation)
         keys = streams.training(seed, g)
         t0 = time.perf_counter()
         population, learner = enc.ask(streams.learner_ask(seed, g), state.learner)
@@ -169,35 +173,59 @@ class Trainer:
         learner, m = enc.tell(streams.learner_step(seed, g), population, score, fitness, learner)
         jax.block_until_ready(learner)
         t2 = time.perf_counter()
-        f, s, beh = np.asarray(fitness), np.asarray(score), np.asarray(behaviour)
+        f = np.asarray(fitness)
         champ = int(np.argmax(f))  # the first of equals
         champ_genotype = enc.individual(population, champ)
         validation = self.validate(champ_genotype)
-        best = float(f[champ])
-        state = state.replace(learner=learner, objective=objective, generation=jnp.asarray(g + 1, jnp.int32),
-                              best_so_far=jnp.maximum(state.best_so_far, jnp.float32(best)))
-        if validation > float(state.champion_validation):  # strictly: the earliest champion wins ties
-            state = state.replace(champion=champ_genotype, champion_validation=jnp.asarray(validation, jnp.float32),
-                                  champion_generation=jnp.asarray(g, jnp.int32))
+        state = advance(state, g, float(f[champ]), champ_genotype, validation, learner, objective)
         t3 = time.perf_counter()
-        row = {
-            "generation": g, "best_fitness": best,
-            # float32 rounding can put the mean of equal values a hair above them: clip to where it lies
-            "mean_fitness": float(np.clip(f.mean(), f.min(), f.max())), "median_fitness": float(np.median(f)),
-            "best_so_far": float(state.best_so_far), "best_score": float(s.max()), "mean_score": float(s.mean()),
-            "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
-            "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
-            "champion_validation": validation, "best_validation": float(state.champion_validation),
-            "best_validation_generation": int(state.champion_generation),
-            "live_fraction": counters.live_steps / max(counters.executed_steps, 1),
-            "live_steps": counters.live_steps, "eval_seconds": t1 - t0, "evolve_seconds": t2 - t1,
-            "validation_seconds": t3 - t2, "generation_seconds": t3 - t0,
-        }
-        for k in enc.metric_fields:
-            row[k] = _scalar(m[k])
-        for k, v in obj_metrics.items():
-            row[k] = _scalar(v)
+        row = generation_row(g, f, np.asarray(score), np.asarray(behaviour), champ, validation, state,
+                             {k: m[k] for k in enc.metric_fields}, obj_metrics)
+        row.update(live_fraction=counters.live_steps / max(counters.executed_steps, 1),
+                   live_steps=counters.live_steps, eval_seconds=t1 - t0, evolve_seconds=t2 - t1,
+                   validation_seconds=t3 - t2, generation_seconds=t3 - t0)
         return GenerationResult(row=row, state=state)
+
+
+#: metrics.csv columns that describe how a generation was executed, not what it computed: a batched
+#: group's runs (kx.evolve.group) share one evaluation, so these differ from the same run alone
+EXECUTION_FIELDS = ("live_fraction", "eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
+
+
+def advance(state: RunState, g: int, best: float, champ_genotype, validation: float, learner,
+            objective) -> RunState:
+    """The run state after generation ``g``: its learner and objective state, the best training fitness
+    so far, and the validated champion (this generation's champion if its validation score ``validation``
+    beats the run's, strictly: the earliest champion wins ties)."""
+    state = state.replace(learner=learner, objective=objective, generation=jnp.asarray(g + 1, jnp.int32),
+                          best_so_far=jnp.maximum(state.best_so_far, jnp.float32(best)))
+    if validation > float(state.champion_validation):
+        state = state.replace(champion=champ_genotype, champion_validation=jnp.asarray(validation, jnp.float32),
+                              champion_generation=jnp.asarray(g, jnp.int32))
+    return state
+
+
+def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ: int, validation: float,
+                   state: RunState, enc_metrics: dict, obj_metrics: dict) -> dict:
+    """Generation ``g``'s metrics row but its execution figures (:data:`EXECUTION_FIELDS` and
+    ``live_steps``): training fitness ``f [P]``, selection score ``s [P]``, behaviour ``beh [3, P]``, the
+    generation champion ``champ`` and its ``validation`` score, the run ``state`` after the generation,
+    the encoding's and the objective's metrics."""
+    row = {
+        "generation": g, "best_fitness": float(f[champ]),
+        # float32 rounding can put the mean of equal values a hair above them: clip to where it lies
+        "mean_fitness": float(np.clip(f.mean(), f.min(), f.max())), "median_fitness": float(np.median(f)),
+        "best_so_far": float(state.best_so_far), "best_score": float(s.max()), "mean_score": float(s.mean()),
+        "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
+        "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
+        "champion_validation": validation, "best_validation": float(state.champion_validation),
+        "best_validation_generation": int(state.champion_generation),
+    }
+    for k, v in enc_metrics.items():
+        row[k] = _scalar(v)
+    for k, v in obj_metrics.items():
+        row[k] = _scalar(v)
+    return row
 
 
 def _scalar(v):
@@ -286,8 +314,99 @@ def train(cfg: ml_collections.ConfigDict, run_dir: str | pathlib.Path, *, resume
 def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: bool, overwrite: bool,
            step: int | None, log: Callable[[str], None]) -> dict:
     """:func:`train`'s work, with the run directory's lock held."""
+    run = open_run(Trainer(cfg), run_dir, resume=resume, overwrite=overwrite, step=step, log=log)  # validates first
+    if run.done:
+        return run.rows[-1] if run.rows else None
+    for _ in range(run.start, cfg.generations):
+        run.record(run.trainer.step(run.state))
+    return run.close()
+
+
+@dataclasses.dataclass
+class OpenRun:
+    """A run directory being written (:func:`open_run`): the run state, and what the files need."""
+
+    trainer: Trainer
+    run_dir: pathlib.Path
+    state: RunState
+    start: int  # the generation the run continues from
+    rows: list
+    log: Callable[[str], None]
+    done: bool = False  # nothing to do: the run has its generations already (nothing was written)
+    manager: object = None
+    baselines: dict | None = None
+    quiet: bool = False  # no progress line per generation (a batched group prints one for all its runs)
+    done_here: int = 0
+    t_first: float | None = None
+    last_plot: float = -float("inf")
+
+    @property
+    def generation(self) -> int:
+        return int(self.state.generation)
+
+    def record(self, result: GenerationResult) -> dict:
+        """Writes one generation: its metrics row, its progress line, its checkpoint when due, progress.png."""
+        cfg, enc, run_dir = self.trainer.cfg, self.trainer.encoding, self.run_dir
+        t_step = time.perf_counter()
+        self.state, row = result.state, result.row
+        g = int(row["generation"])
+        self.rows.append(row)
+        report.append_row(run_dir / "metrics.csv", row, self.trainer.fields)
+        self.done_here += 1
+        # ETA from this process's own clock, over its generations after the first (which compiles), each
+        # with its checkpoint and plot: never from metrics.csv, which may hold fewer rows (deleted, cut)
+        if self.done_here == 1:
+            self.t_first = t_step
+        per_gen = (t_step - self.t_first) / (self.done_here - 1) if self.done_here > 1 else None
+        if not self.quiet:
+            self.log(report.progress_line(row, cfg.generations,
+                                          None if per_gen is None else per_gen * (cfg.generations - g - 1), enc))
+        last = g + 1 == cfg.generations
+        if (g + 1) % cfg.checkpoint_every == 0 or last:
+            meta = {"config": cfg.to_dict(), "method": cfg.method, "generation": g + 1,
+                    "best_so_far": float(self.state.best_so_far), "best_fitness": row["best_fitness"],
+                    "champion_validation": row["champion_validation"], "best_validation": row["best_validation"]}
+            ckpt.save(self.manager, g + 1, self.state, meta)
+            # progress.png follows the checkpoints, redrawn at most every PLOT_EVERY_S seconds (drawing
+            # it takes about 0.25 s, a third of a small run's generation) and always after the last one
+            if not last and time.perf_counter() - self.last_plot >= PLOT_EVERY_S:
+                report.plot_progress(self.rows, run_dir / "progress.png", self._title, self.baselines,
+                                     enc.plot_field)
+                self.last_plot = time.perf_counter()
+        return row
+
+    @property
+    def _title(self) -> str:
+        cfg = self.trainer.cfg
+        return f"kx {cfg.task} {cfg.method}, seed {cfg.seed}"
+
+    def close(self) -> dict | None:
+        """The run's last files (progress.png, champion.gif, champion.png); returns its last metrics row."""
+        trainer, run_dir, state, rows, log = self.trainer, self.run_dir, self.state, self.rows, self.log
+        cfg, enc = trainer.cfg, trainer.encoding
+        if rows:
+            report.plot_progress(rows, run_dir / "progress.png", self._title, self.baselines, enc.plot_field)
+        written = ["metrics.csv", "baselines.json", "progress.png", "checkpoints/"]
+        if rows and int(state.champion_generation) >= 0:
+            if cfg.gif:
+                gif = render_champion(trainer, state.champion, run_dir / "champion.gif", cfg.gif_frames)
+                written.append(gif.name)
+                log(f"validated champion (generation {int(state.champion_generation) + 1}, "
+                    f"{float(state.champion_validation):.4f} on the {cfg.validation_trials} validation states): {gif}")
+            pic = enc.draw(state.champion, run_dir / "champion.png")
+            if pic is not None:
+                written.append(pathlib.Path(pic).name)
+        log(f"done: {run_dir} ({', '.join(written)})")
+        return rows[-1] if rows else None
+
+
+def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite: bool, step: int | None,
+             log: Callable[[str], None]) -> OpenRun:
+    """Prepares ``run_dir`` for ``trainer``'s run (its lock held by the caller): refuses what must be
+    refused before any compute, restores the checkpoint on ``--resume``, writes config.json and
+    baselines.json; returns the :class:`OpenRun` whose ``record`` writes each generation."""
     run_dir = pathlib.Path(run_dir).absolute()  # orbax wants absolute paths
-    trainer = Trainer(cfg)  # validates the config first
+    cfg = trainer.cfg
     enc = trainer.encoding
     if step is not None and not resume:
         raise RunError("--step: only with --resume")
@@ -323,8 +442,8 @@ def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: boo
             if start >= cfg.generations:  # the run stays as it is, byte for byte: nothing set aside or rewritten
                 log(f"nothing to do: {start} generations done, {cfg.generations} asked (checkpoint {got} of "
                     f"{run_dir}); nothing written (--config.generations=N runs it longer)")
-                done_rows = report.read_rows(metrics_path, below=start)
-                return done_rows[-1] if done_rows else None
+                return OpenRun(trainer=trainer, run_dir=run_dir, state=state, start=start, log=log, done=True,
+                               rows=report.read_rows(metrics_path, below=start))
         elif step is not None:
             raise RunError(f"--step {step}: {run_dir} has no checkpoint yet")
         removed = ckpt.clean_tmp(run_dir)  # a checkpoint a kill interrupted: never complete, never read
@@ -362,45 +481,5 @@ def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: boo
                                                    "mean_fitness": baselines})
     log(f"validation states ({cfg.validation_trials}): "
         + ", ".join(f"{k} policy {v:.4f}" for k, v in baselines.items()))
-    title = f"kx {cfg.task} {cfg.method}, seed {cfg.seed}"
-    done_here, t_first, last_plot = 0, None, -float("inf")
-    row = rows[-1] if rows else None
-    for g in range(start, cfg.generations):
-        result = trainer.step(state)
-        t_step = time.perf_counter()
-        state, row = result.state, result.row
-        rows.append(row)
-        report.append_row(metrics_path, row, trainer.fields)
-        done_here += 1
-        # ETA from this process's own clock, over its generations after the first (which compiles), each
-        # with its checkpoint and plot: never from metrics.csv, which may hold fewer rows (deleted, cut)
-        if done_here == 1:
-            t_first = t_step
-        per_gen = (t_step - t_first) / (done_here - 1) if done_here > 1 else None
-        log(report.progress_line(row, cfg.generations, None if per_gen is None else per_gen * (cfg.generations - g - 1),
-                                 enc))
-        last = g + 1 == cfg.generations
-        if (g + 1) % cfg.checkpoint_every == 0 or last:
-            meta = {"config": cfg.to_dict(), "method": cfg.method, "generation": g + 1,
-                    "best_so_far": float(state.best_so_far), "best_fitness": row["best_fitness"],
-                    "champion_validation": row["champion_validation"], "best_validation": row["best_validation"]}
-            ckpt.save(manager, g + 1, state, meta)
-            # progress.png follows the checkpoints, redrawn at most every PLOT_EVERY_S seconds (drawing
-            # it takes about 0.25 s, a third of a small run's generation) and always after the last one
-            if not last and time.perf_counter() - last_plot >= PLOT_EVERY_S:
-                report.plot_progress(rows, run_dir / "progress.png", title, baselines, enc.plot_field)
-                last_plot = time.perf_counter()
-    if rows:
-        report.plot_progress(rows, run_dir / "progress.png", title, baselines, enc.plot_field)
-    written = ["metrics.csv", "baselines.json", "progress.png", "checkpoints/"]
-    if rows and int(state.champion_generation) >= 0:
-        if cfg.gif:
-            gif = render_champion(trainer, state.champion, run_dir / "champion.gif", cfg.gif_frames)
-            written.append(gif.name)
-            log(f"validated champion (generation {int(state.champion_generation) + 1}, "
-                f"{float(state.champion_validation):.4f} on the {cfg.validation_trials} validation states): {gif}")
-        pic = enc.draw(state.champion, run_dir / "champion.png")
-        if pic is not None:
-            written.append(pathlib.Path(pic).name)
-    log(f"done: {run_dir} ({', '.join(written)})")
-    return row
+    return OpenRun(trainer=trainer, run_dir=run_dir, state=state, start=start, rows=rows, log=log, manager=manager,
+                   baselines=baselines)

@@ -1,6 +1,9 @@
 """Every random stream of a run, in one place: which key feeds what, so that no two uses share keys.
 
-A run with seed ``s`` derives everything from ``root = jax.random.key(s)``::
+A run with seed ``s`` derives everything from its *run key* ``root = jax.random.key(s)``, which the run
+state carries (:func:`run_key`: its raw ``uint32[2]`` data, ``RunState.key``), so that the runs of a
+batched group (:mod:`kx.evolve.group`) are one pytree with a leading run axis and derive their keys
+under ``vmap``. Every function below takes the seed (an ``int``) or the run key::
 
     stream = fold_in(root, STREAM)                    STREAM: TRAIN 1, VALIDATION 2, TEST 3, LEARNER 4
     TRAIN:       k = fold_in(stream, generation)      the generation's shared trials
@@ -30,6 +33,7 @@ its keys stay in its own subtree. The same table, with the users of each key, is
 from __future__ import annotations
 
 import jax
+import numpy as np
 
 TRAIN, VALIDATION, TEST, LEARNER = 1, 2, 3, 4
 
@@ -46,8 +50,23 @@ class Trials(tuple):
         return self[1]
 
 
-def _stream(seed: int, stream: int) -> jax.Array:
-    return jax.random.fold_in(jax.random.key(seed), stream)
+def run_key(seed: int) -> jax.Array:
+    """The run key of seed ``seed`` as the run state carries it: the raw data (``uint32[2]`` under the
+    default threefry keys) of ``jax.random.key(seed)``."""
+    return jax.random.key_data(jax.random.key(seed))
+
+
+def _root(run) -> jax.Array:
+    """The typed root key of ``run``: a seed (an int), a typed key, or a run key's raw data."""
+    if isinstance(run, (int, np.integer)):
+        return jax.random.key(run)
+    if jax.dtypes.issubdtype(run.dtype, jax.dtypes.prng_key):
+        return run
+    return jax.random.wrap_key_data(run)
+
+
+def _stream(seed, stream: int) -> jax.Array:
+    return jax.random.fold_in(_root(seed), stream)
 
 
 def _trials(k: jax.Array) -> Trials:

@@ -80,21 +80,31 @@ def _lane_keys(key: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
     return jax.vmap(lambda i, tt: jax.random.fold_in(jax.random.fold_in(key, i), tt))(ids, t)
 
 
+def _group_lane_keys(keys: jax.Array, group_size: jax.Array, ids: jax.Array, t: jax.Array) -> jax.Array:
+    """:func:`_lane_keys` of lanes from several run groups: lane ``id`` belongs to group ``id //
+    group_size`` and is lane ``id % group_size`` of it; its key is that of the group's evaluation key
+    ``keys[group]`` (one group: the same keys as :func:`_lane_keys`)."""
+    return jax.vmap(lambda k, i, tt: jax.random.fold_in(jax.random.fold_in(k, i), tt))(
+        keys[ids // group_size], ids % group_size, t)
+
+
 def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_id: jax.Array,
-                   key: jax.Array, params: KeepAwayParams, chunk: jax.Array, stop_at: jax.Array,
-                   table: Any = None, *, policy: Policy, config: KeepAwayConfig):
+                   keys: jax.Array, group_size: jax.Array, params: KeepAwayParams, chunk: jax.Array,
+                   stop_at: jax.Array, table: Any = None, *, policy: Policy, config: KeepAwayConfig):
     """Up to ``chunk`` iterations of every lane (``[.., n]``), stopping early once at most ``stop_at``
     lanes are live (the next narrower batch width would hold them; 0: when all have finished).
     ``noise_word [n]``: each lane's trial's kick-noise word (:func:`kx.sim.env.noise_words`).
     ``lane_params``: each lane's parameters, or for a shared policy each lane's row of ``table``
-    (``[n]`` int32).
+    (``[n]`` int32). ``keys [R]``: the evaluation key of each run group (lanes ``r * group_size`` to
+    ``(r + 1) * group_size - 1``), read by stochastic policies only.
     """
-    policy_key = stream_keys(key)[1]
+    policy_keys = jax.vmap(lambda k: stream_keys(k)[1])(keys)
     s_max = env.noise_limit(params.kick_noise_deg)
     policy_params = Shared(table, lane_params) if policy.shared else lane_params
 
     def one(state):
-        pkeys = _lane_keys(policy_key, lane_id, state.t) if policy.stochastic else None
+        pkeys = (_group_lane_keys(policy_keys, group_size, lane_id, state.t) if policy.stochastic
+                 else None)
         action = ops.fenced(policy.apply, policy_params, state, pkeys)
         noise = env.kick_noise(noise_word, state.t, s_max)
         return env.transition(state, action, noise, params, config)
@@ -123,8 +133,8 @@ def _lane_specs(tree):
 
 
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"))
-def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, table=None, *, policy, config,
-             n_dev):
+def _advance(state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at, table=None, *,
+             policy, config, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes are done or fit its share of the next narrower width (a global
     count would need a collective every iteration, which measured slower). A shared policy's
@@ -132,16 +142,16 @@ def _advance(state, lane_params, noise_word, lane_id, key, params, chunk, stop_a
     the iterations it ran and its live lanes ``[n_dev, 2]``."""
     local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
-        return local(state, lane_params, noise_word, lane_id, key, params, chunk, stop_at, table)
+        return local(state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at, table)
     mesh = _mesh(n_dev)
     lanes = jax.sharding.PartitionSpec("lanes")
     rep = jax.sharding.PartitionSpec()
-    in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes, lanes, rep, jax.tree.map(lambda _: rep, params),
-                rep, rep, jax.tree.map(lambda _: rep, table))
+    in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes, lanes, rep, rep,
+                jax.tree.map(lambda _: rep, params), rep, rep, jax.tree.map(lambda _: rep, table))
     out_specs = (_lane_specs(state), jax.sharding.PartitionSpec("lanes", None))
     # each device stops once its own live lanes fit its share of the narrower width
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
-        state, lane_params, noise_word, lane_id, key, params, chunk, stop_at // n_dev, table)
+        state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at // n_dev, table)
 
 
 def lockstep(policy: Policy, lane_params: Any, lanes: State, params: KeepAwayParams, config: KeepAwayConfig, *,
@@ -152,8 +162,8 @@ def lockstep(policy: Policy, lane_params: Any, lanes: State, params: KeepAwayPar
     device, the iterations it ran and its live lanes ``[n_dev, 2]``. ``python -m kx.bench sim`` times it
     beside :func:`evaluate`."""
     ids = jnp.arange(lanes.done.shape[-1], dtype=jnp.int32)
-    return _advance(lanes, lane_params, env.noise_words(key, ids), ids, key, params, np.int32(iterations),
-                    np.int32(-1), policy=policy, config=config, n_dev=jax.local_device_count())
+    return _advance(lanes, lane_params, env.noise_words(key, ids), ids, key[None], np.int32(ids.shape[0]), params,
+                    np.int32(iterations), np.int32(-1), policy=policy, config=config, n_dev=jax.local_device_count())
 
 
 @functools.partial(jax.jit, static_argnames=("width", "n_dev"))
@@ -219,6 +229,13 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       params, config: the world.
       key: needed for kick noise and stochastic policies: evaluator noise (the kicks) draws from
         ``fold_in(key, 0)``, policy noise from ``fold_in(key, 1)`` (:func:`stream_keys`).
+
+        **Run groups.** ``key`` may instead be an array of R keys (shape ``[R]``): R independent
+        evaluations (the runs of a batched group, :mod:`kx.evolve.group`) played as one batch. Then
+        ``policy_params`` holds R x P parameter sets, run ``r``'s P at rows ``r * P`` to ``(r + 1) * P
+        - 1``; ``starts`` holds R x T states, run ``r``'s at ``r * T`` to ``(r + 1) * T - 1``; run ``r``'s
+        policies meet only its own states with its own key's noise; and the result is ``[R, P, T]``.
+        Each run's episodes, and so its results, are those that evaluating it alone gives.
       chunk: the most iterations per compiled call. A call also returns as soon as its live lanes
         fit the next narrower width, so the batch narrows without waiting for the chunk to end; calls
         start at ``first_chunk`` iterations and double.
@@ -227,25 +244,36 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       counters: if given, filled with executed and live lane-steps.
 
     Returns:
-      :class:`EpisodeStats` with batch ``[G, T]`` (``behaviour`` is ``[3, G, T]``).
+      :class:`EpisodeStats` with batch ``[G, T]`` (``behaviour`` is ``[3, G, T]``); with R keys
+      ``[R, P, T]`` (``behaviour`` ``[3, R, P, T]``).
     """
     env.check(config, params)
     if key is None:
         if policy.stochastic or float(jnp.asarray(params.kick_noise_deg)) > 0:
             raise ValueError("key: a key is needed for kick noise and for stochastic policies")
         key = jax.random.key(0)
-    n_trials = starts.holder.shape[-1]
+    grouped = key.ndim == 1
+    keys = key if grouped else key[None]
+    n_groups = keys.shape[0]
+    n_states = starts.holder.shape[-1]
     leaves = jax.tree.leaves(policy_params)
-    n_pol = leaves[0].shape[0] if leaves else 1
-    n = n_pol * n_trials
+    n_sets = leaves[0].shape[0] if leaves else 1
+    if n_states % n_groups or n_sets % n_groups:
+        raise ValueError(f"key: {n_groups} run groups need as many start states per group and parameter sets per "
+                         f"group; got {n_states} start states and {n_sets} parameter sets")
+    n_trials, n_pol = n_states // n_groups, n_sets // n_groups
+    group_size = n_pol * n_trials
+    n = n_groups * group_size
     n_dev = min(devices or jax.local_device_count(), jax.local_device_count())
     ladder = width_ladder(n, multiple=n_dev)
     width = ladder[0]
     # Lanes past n (padding to a multiple of the devices) repeat lane i mod n: the same episode, with
-    # the same keys, so recording it twice writes the same values.
+    # the same keys, so recording it twice writes the same values. Lane l plays run l // group_size's
+    # policy (l // T) on its trial l % T (the state of row (l // group_size) * T + l % T).
     lane_id = jnp.arange(width, dtype=jnp.int32) % n
-    trial_id = lane_id % n_trials
-    noise_word = jnp.take(env.noise_words(stream_keys(key)[0], jnp.arange(n_trials)), trial_id)
+    trial_id = (lane_id // group_size) * n_trials + lane_id % n_trials
+    words = jax.vmap(lambda k: env.noise_words(stream_keys(k)[0], jnp.arange(n_trials)))(keys).reshape(-1)
+    noise_word = jnp.take(words, trial_id)
     state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
     if policy.shared:  # lanes carry their row of the table; the table stays whole
         lane_params, table = lane_id // n_trials, policy_params
@@ -265,7 +293,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     while True:
         narrower = [w for w in ladder if w < width and w <= SHRINK * width]
         stop_at = np.int32(narrower[0] if narrower else 0)
-        state, progress = _advance(state, lane_params, noise_word, lane_id, key, params,
+        state, progress = _advance(state, lane_params, noise_word, lane_id, keys, np.int32(group_size), params,
                                    np.int32(this_chunk), stop_at, table, policy=policy, config=config,
                                    n_dev=n_dev)
         this_chunk = min(2 * this_chunk, chunk)
@@ -289,7 +317,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     if counters is not None:
         counters.live_steps += int(jnp.sum(results.iterations))
         counters.widths = tuple(widths)
-    shape = (n_pol, n_trials)
+    shape = (n_groups, n_pol, n_trials) if grouped else (n_pol, n_trials)
     return jax.tree.map(lambda a: a.reshape(a.shape[:-1] + shape), results)
 
 
