@@ -20,6 +20,16 @@ but ``generations``, ``checkpoint_every``, ``keep_checkpoints``, ``gif`` and ``g
 for bit where the uninterrupted run would have (and with nothing left to do, it writes nothing).
 ``--resume --step N`` continues from checkpoint N; the later checkpoints are moved to ``abandoned/`` in
 the run directory, never deleted.
+
+``--seeds`` trains several runs of the config at once, differing only in seed, as one batched program
+(:mod:`kx.evolve.group`), with one progress line per generation for the group; each run gets its own
+run directory ``<workdir>/seed<s>``, the same, bit for bit but for the timings, as ``--config.seed=<s>``
+alone writes, and resumable alone or as the group::
+
+    python -m kx.train --seeds 0-15 --workdir runs/neat16          # runs/neat16/seed0 ... seed15
+    python -m kx.train --seeds 0-15 --workdir runs/neat16 --resume
+    python -m kx.train --config configs/neat_4v3.py --seeds 0-15 --workdir runs/t16 \
+        --config.transfer.source=runs/neat16/seed{seed}               # each target from its own source
 """
 
 from __future__ import annotations
@@ -41,6 +51,8 @@ def parse(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
     p.add_argument("--resume", action="store_true", help="continue the run in --workdir from its last checkpoint")
     p.add_argument("--step", type=int, default=None, help="with --resume: continue from this checkpoint")
     p.add_argument("--overwrite", action="store_true", help="delete the run in --workdir and start again")
+    p.add_argument("--seeds", default=None, help="train these seeds at once as one batched group: 0-15, 0,3,7 or "
+                   "a mix; each run in <workdir>/seed<s> ({seed} in transfer.source names each run's source)")
     overrides, rest, i = [], [], 0
     while i < len(argv):
         a = argv[i]
@@ -82,12 +94,99 @@ def resolve_bare(cfg, overrides: list[str]) -> list[str]:
     return out
 
 
+def parse_seeds(text: str) -> list[int]:
+    """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]`` (``ConfigError`` naming ``--seeds`` otherwise)."""
+    from kx.evolve.errors import ConfigError
+
+    seeds = []
+    for part in text.split(","):
+        lo, dash, hi = part.strip().partition("-")
+        try:
+            seeds += list(range(int(lo), int(hi) + 1)) if dash else [int(lo)]
+        except ValueError:
+            raise ConfigError(f"--seeds: allowed seeds and ranges such as 0-15 or 0,3,7; got {text!r}") from None
+    if not seeds or any(s < 0 or s >= 2**31 for s in seeds):
+        raise ConfigError(f"--seeds: allowed integers in [0, 2^31) such as 0-15 or 0,3,7; got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise ConfigError(f"--seeds: each seed once; got {text!r}")
+    return seeds
+
+
+def group_configs(cfg, seeds: list[int]) -> list:
+    """One config per seed: ``cfg`` with ``seed`` and, when ``transfer.source`` holds ``{seed}``, that
+    seed's source."""
+    out = []
+    for s in seeds:
+        c = cfg.copy_and_resolve_references()
+        c.unlock()
+        c.seed = s
+        if "{seed}" in c.transfer.source:
+            c.transfer.source = c.transfer.source.replace("{seed}", str(s))
+        c.lock()
+        out.append(c)
+    return out
+
+
+def main_group(args, overrides) -> int:
+    """``--seeds``: the runs of a batched group (:func:`kx.evolve.group.train_group`)."""
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import group as group_lib
+    from kx.evolve import run as run_lib
+    from kx.evolve.errors import ConfigError, RunError
+
+    try:
+        seeds = parse_seeds(args.seeds)
+        if args.step is not None:
+            raise RunError("--step: not with --seeds (resume one run with its own --workdir)")
+        if args.resume and not args.workdir:
+            raise RunError("--resume: name the group with --workdir")
+        if args.resume and args.config is None:
+            saved = pathlib.Path(args.workdir) / f"seed{seeds[0]}" / "config.json"
+            if not saved.is_file():
+                raise RunError(f"--resume: {saved.parent} holds no run to resume (no config.json)")
+            base = cfg_lib.read_run_config(saved)
+            cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
+            cfg.lock()
+        else:
+            if any("=" not in o for o in overrides):
+                overrides = resolve_bare(cfg_lib.load(args.config), overrides)
+            cfg = cfg_lib.load(args.config, overrides)
+        cfgs = group_configs(cfg, seeds)
+        for c in cfgs:
+            cfg_lib.validate(c)
+        group_lib.check_group(cfgs)
+        if args.workdir:
+            workdir = pathlib.Path(args.workdir)
+        else:
+            name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
+            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
+            workdir = pathlib.Path("runs") / f"{name}-seeds{seeds[0]}-{seeds[-1]}-{stamp}"
+        dirs = [workdir / f"seed{s}" for s in seeds]
+        for d in dirs:
+            if d.is_dir():
+                run_lib.RunLock(d).check()
+            if not args.overwrite:
+                run_lib.prepare_run_dir(d, args.resume, False)
+    except (ConfigError, RunError) as e:
+        print(f"kx.train: error: {e}", file=sys.stderr)
+        return 2
+    try:
+        group_lib.train_group(cfgs, dirs, resume=args.resume, overwrite=args.overwrite,
+                              log=lambda s: print(s, flush=True))
+    except (ConfigError, RunError) as e:
+        print(f"kx.train: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     args, overrides = parse(argv)
     # first: a config's validation may touch JAX (CMA-ES and HyperNEAT build arrays), and JAX's devices
     # are fixed when it first does
     runtime.setup()
+    if args.seeds is not None:
+        return main_group(args, overrides)
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve.errors import ConfigError, RunError

@@ -18,6 +18,10 @@ LOOP_FIELDS = (
     "best_validation", "best_validation_generation", "live_fraction", "live_steps", "eval_seconds",
     "evolve_seconds", "validation_seconds", "generation_seconds")
 TIMING_FIELDS = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
+#: the columns that describe how a generation was executed, not what it computed: the timings and the
+#: live share of the evaluator's lane-steps (a batched group's runs, kx.evolve.group, share one evaluation
+#: and its narrowing, so these differ from the same run alone; everything else is the same bit for bit)
+EXECUTION_FIELDS = ("live_fraction",) + TIMING_FIELDS
 
 
 def csv_fields(encoding, objective=None) -> tuple[str, ...]:

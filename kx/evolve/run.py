@@ -187,9 +187,7 @@ class Trainer:
         return GenerationResult(row=row, state=state)
 
 
-#: metrics.csv columns that describe how a generation was executed, not what it computed: a batched
-#: group's runs (kx.evolve.group) share one evaluation, so these differ from the same run alone
-EXECUTION_FIELDS = ("live_fraction", "eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
+EXECUTION_FIELDS = report.EXECUTION_FIELDS
 
 
 def advance(state: RunState, g: int, best: float, champ_genotype, validation: float, learner,

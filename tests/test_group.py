@@ -1,0 +1,197 @@
+"""Batched run groups (kx.evolve.group): R runs of one config as one program write, bit for bit, the run
+directories of the same seeds trained one by one (timings and the live share aside), resume after
+SIGKILL and compile nothing new across generations."""
+
+import json
+import os
+import pathlib
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import jax
+import numpy as np
+import pytest
+
+from kx import train as train_cli
+from kx.evolve import checkpoint as ckpt
+from kx.evolve import config as cfg_lib
+from kx.evolve import group as group_lib
+from kx.evolve import report
+from kx.evolve import run as run_lib
+from kx.evolve.errors import ConfigError
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+SEEDS = (0, 3, 7)
+SMALL = ["trials=3", "validation_trials=6", "generations=3", "gif=false", "checkpoint_every=1", "keep_checkpoints=5",
+         "sim.max_iterations=120"]
+SIZE = {"neat": 12, "hyperneat": 12, "cma_es": 6}  # test_run_loop.py's sizes: programs it compiled are reused
+
+
+def _cfg(method, seed, *extra, task="3v2"):
+    return cfg_lib.load(REPO / "configs" / f"{method}_{task}.py",
+                        [*SMALL, f"population_size={SIZE[method]}", f"seed={seed}", *extra])
+
+
+def _quiet(_):
+    pass
+
+
+def _rows(run_dir):
+    return [{k: v for k, v in r.items() if k not in report.EXECUTION_FIELDS}
+            for r in report.read_rows(run_dir / "metrics.csv", below=10**9)]
+
+
+def _meta(meta):
+    """A checkpoint's metadata but the config fields a resume may change (``generations``, ...)."""
+    return {**meta, "config": {k: v for k, v in cfg_lib.flatten(meta["config"]).items() if k not in cfg_lib.RESUMABLE}}
+
+
+def assert_same_run(a: pathlib.Path, b: pathlib.Path):
+    """Two run directories hold the same run: config, baselines, metrics rows (execution figures aside),
+    every checkpoint's run state and metadata."""
+    assert json.loads((a / "config.json").read_text()) == json.loads((b / "config.json").read_text())
+    assert (a / "baselines.json").read_text() == (b / "baselines.json").read_text()
+    rows_a, rows_b = _rows(a), _rows(b)
+    diff = [(i, k, r[k], s.get(k)) for i, (r, s) in enumerate(zip(rows_a, rows_b)) for k in r if r[k] != s.get(k)]
+    assert len(rows_a) == len(rows_b) and rows_a and not diff, diff[:5]
+    steps = ckpt.steps(a)
+    assert steps and steps == ckpt.steps(b)
+    for step in steps:
+        trainer_a, _, state_a, meta_a = run_lib.restore(a, step)
+        _, _, state_b, meta_b = run_lib.restore(b, step)
+        assert _meta(meta_a) == _meta(meta_b)
+        for x, y in zip(jax.tree.leaves(state_a), jax.tree.leaves(state_b), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+def _group_and_alone(tmp_path, cfgs):
+    group_lib.train_group(cfgs, [tmp_path / "group" / f"seed{c.seed}" for c in cfgs], log=_quiet)
+    for c in cfgs:
+        run_lib.train(c, tmp_path / "alone" / f"seed{c.seed}", log=_quiet)
+    for c in cfgs:
+        assert_same_run(tmp_path / "group" / f"seed{c.seed}", tmp_path / "alone" / f"seed{c.seed}")
+
+
+# ~35 s each: the default suite checks a group against its runs alone in memory (the recompile test below)
+@pytest.mark.slow
+@pytest.mark.parametrize("method, objective", [("neat", "hybrid"), ("hyperneat", "fitness"), ("cma_es", "hybrid")])
+def test_a_batched_group_writes_what_its_seeds_write_one_by_one(tmp_path, method, objective):
+    _group_and_alone(tmp_path, [_cfg(method, s, f"objective={objective}") for s in SEEDS])
+
+
+@pytest.mark.slow
+def test_a_batched_group_of_transferred_runs_writes_what_they_write_one_by_one(tmp_path):
+    """R sources (trained as a group) seed R targets in 4v3: batched and one by one, the same."""
+    sources = [_cfg("neat", s, "generations=2") for s in SEEDS]
+    group_lib.train_group(sources, [tmp_path / "src" / f"seed{s}" for s in SEEDS], log=_quiet)
+    targets = [_cfg("neat", s, f"transfer.source={tmp_path / 'src' / f'seed{s}'}", task="4v3") for s in SEEDS]
+    _group_and_alone(tmp_path, targets)
+
+
+@pytest.mark.slow  # ~40 s
+def test_a_group_resumed_with_its_runs_apart_catches_up_in_lockstep(tmp_path):
+    """Runs of one group at different generations (a kill between two runs' checkpoints) resume as a
+    group: the run behind advances alone, then all together; each ends as it would alone."""
+    cfgs = [_cfg("neat", s) for s in SEEDS]
+    dirs = [tmp_path / "group" / f"seed{s}" for s in SEEDS]
+    group_lib.train_group([_cfg("neat", s, "generations=2") for s in SEEDS[:2]], dirs[:2], log=_quiet)
+    run_lib.train(_cfg("neat", SEEDS[2], "generations=1"), dirs[2], log=_quiet)
+    lines = []
+    group_lib.train_group(cfgs, dirs, resume=True, log=lines.append)
+    progress = [ln for ln in lines if ln.startswith("gen ")]
+    assert [re.search(r"\d+ runs", ln).group() for ln in progress] == ["1 runs", "3 runs"], progress
+    for c, d in zip(cfgs, dirs):
+        run_lib.train(c, tmp_path / "alone" / f"seed{c.seed}", log=_quiet)
+        assert_same_run(d, tmp_path / "alone" / f"seed{c.seed}")
+
+
+def test_a_group_refuses_configs_that_differ_beyond_the_seed_before_any_compute(tmp_path):
+    a, b = _cfg("neat", 0), _cfg("neat", 1, "trials=4")
+    with pytest.raises(ConfigError, match=r"^trials: the runs of a batched group share every config field but seed"):
+        group_lib.train_group([a, b], [tmp_path / "a", tmp_path / "b"], log=_quiet)
+    with pytest.raises(ConfigError, match=r"seeds: each run of a group needs its own seed; \[0\] repeated"):
+        group_lib.check_group([a, _cfg("neat", 0)])
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "config.json").write_text("{}")
+    with pytest.raises(run_lib.RunError, match="exists and is not empty"):
+        group_lib.train_group([a, _cfg("neat", 1)], [tmp_path / "a", tmp_path / "b"], log=_quiet)
+    assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("text, seeds", [("0-3", [0, 1, 2, 3]), ("5", [5]), ("0-1,7", [0, 1, 7])])
+def test_seeds_parse(text, seeds):
+    assert train_cli.parse_seeds(text) == seeds
+
+
+@pytest.mark.parametrize("text", ["a", "3-1x", "", "1,1", "-2"])
+def test_bad_seeds_are_refused_naming_the_flag(text):
+    with pytest.raises(ConfigError, match="^--seeds: "):
+        train_cli.parse_seeds(text)
+
+
+def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what_its_runs_do_alone():
+    """After the first two generations, a group's generation compiles only evaluator batch widths it
+    reaches for the first time; and every generation of every run, its metrics row (execution figures
+    aside) and its run state, is what the same run computes alone (:class:`kx.evolve.run.Trainer`)."""
+    from tests.test_run_loop import _compiles_during
+
+    # test_run_loop.py's shapes for NEAT: the runs alone reuse what its recompile test compiled
+    cfgs = [_cfg("neat", s, "generations=5", "trials=2", "validation_trials=4", "sim.max_iterations=60")
+            for s in SEEDS]
+    group = group_lib.RunGroup.from_configs(cfgs)
+    state, compiles = _compiles_during(group.init)
+    per_generation, rows = [compiles], []
+    for _ in range(5):
+        (state, got), compiles = _compiles_during(lambda: group.step(state))
+        per_generation.append(compiles)
+        rows.append(got)
+    _, probe = _compiles_during(lambda: jax.jit(lambda x: x * 3.0 - 1.0)(np.arange(3.0)))
+    assert probe, "the log of compilations caught nothing: the test would pass vacuously"
+    seen = set(per_generation[0]) | set(per_generation[1])
+    for g, compiles in enumerate(per_generation[2:], 1):
+        for c in compiles:
+            assert c not in seen, f"generation {g} compiled {c[0]} again with the same shapes"
+            seen.add(c)
+    later = [c for compiles in per_generation[3:] for c in compiles]
+    assert all("_advance" in name or "_compact" in name for name, _ in later), later
+    strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
+    for r, c in enumerate(cfgs):
+        trainer = run_lib.Trainer(c)
+        alone = trainer.init()
+        for g in range(5):
+            result = trainer.step(alone)
+            alone = result.state
+            assert strip(result.row) == strip(rows[g][r]), (c.seed, g)
+        for x, y in zip(jax.tree.leaves(alone), jax.tree.leaves(group_lib.run_state(state, r)), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+@pytest.mark.slow
+def test_a_batched_group_killed_with_sigkill_resumes_bit_for_bit(tmp_path):
+    """``kx.train --seeds`` killed once some run has checkpoint 2, resumed as a group: every run ends as
+    the same seed trained alone does."""
+    args = ["--config", "configs/neat_3v2.py", *(f"--config.{o}" for o in SMALL), "--config.population_size=12"]
+    group = tmp_path / "group"
+    cmd = [sys.executable, "-m", "kx.train", "--seeds", "0,3,7", "--workdir", str(group), *args]
+    proc = subprocess.Popen([*cmd, "--config.generations=100000"], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.time() + 600
+    while time.time() < deadline and proc.poll() is None:
+        if any(2 in ckpt.steps(group / f"seed{s}") for s in SEEDS):
+            break
+        time.sleep(0.005)
+    assert proc.poll() is None, "the group ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    resumed = subprocess.run([*cmd, "--resume", "--config.generations=4"], cwd=REPO, capture_output=True, text=True,
+                             timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "resuming" in resumed.stdout
+    for s in SEEDS:
+        alone = tmp_path / "alone" / f"seed{s}"
+        run_lib.train(_cfg("neat", s, "generations=4"), alone, log=_quiet)
+        assert_same_run(group / f"seed{s}", alone)
