@@ -17,6 +17,8 @@ def test_width_ladder():
     assert ev.width_ladder(4500) == [4500, 4096, 3072, 2048, 1792, 1536, 1280, 1024, 896, 768, 640, 512, 256,
                                      128, 64]
     assert ev.width_ladder(40) == [40]
+    # the rungs an evaluation of 4500 lanes steps through: each the widest width at most 0.8 of the last
+    assert ev.rungs(ev.width_ladder(4500)) == [4500, 3072, 2048, 1536, 1024, 768, 512, 256, 128, 64]
     assert all(w % 2 == 0 for w in ev.width_ladder(4501, multiple=2))
 
 
@@ -27,7 +29,7 @@ def test_evaluate_equals_single_episode_rollouts():
     mlp["w2"] = mlp["w2"].at[:, :, 0].add(0.8)  # lean toward holding so that some episodes last
     policy = policies.mlp_policy(CFG)
     key = jax.random.key(9)
-    stats = ev.evaluate(policy, mlp, starts, PARAMS, CFG, first_chunk=2, chunk=16, key=key)
+    stats = ev.evaluate(policy, mlp, starts, PARAMS, CFG, key=key)
     assert stats.fitness.shape == (n_pol, n_trials) and stats.behaviour.shape == (3, n_pol, n_trials)
     for g in range(n_pol):
         for t in range(n_trials):
@@ -49,16 +51,12 @@ def test_evaluate_equals_single_episode_rollouts():
 def test_finished_episodes_are_not_paid_for():
     starts = env.reset_batch(jax.random.key(2), 60, PARAMS, CFG)
     c = ev.EvalCounters()
-    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c, key=jax.random.key(0),
-                        first_chunk=2, chunk=16)
+    stats = ev.evaluate(policies.always_hold(CFG), None, starts, PARAMS, CFG, counters=c, key=jax.random.key(0))
     assert np.all(np.asarray(stats.reason) == Reason.TACKLED)  # holding never survives
     longest = int(stats.iterations.max())
-    # 60 lanes: one rung, so every call steps all 60 until the last episode ends, not 600 steps
-    assert c.widths == (60,)
+    # 60 lanes: one rung, so its one call steps all 60 until the last episode ends, not 600 steps
+    assert ev.rungs(ev.width_ladder(60)) == [60] and c.widths == (60,) and c.chunks == 1
     assert c.executed_steps == 60 * longest
-    # calls of 2, 4, 8, 16, 16, ... iterations, the last cut short when the last episode ends
-    lengths = [min(2 << i, 16) for i in range(100)]
-    assert c.chunks == next(m for m in range(1, 100) if sum(lengths[:m]) >= longest)
     # live lane-steps counted independently: a plain lockstep loop counting the lanes not yet done
     # (holding never kicks, so the kick noise plays no part)
     def live_count(state, _):

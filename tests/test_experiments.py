@@ -5,6 +5,7 @@ that regenerates byte for byte wherever its folder lies; a 2 x 2 x 2 sweep and i
 import csv
 import math
 import pathlib
+import re
 import shutil
 
 import numpy as np
@@ -130,10 +131,30 @@ class _Interrupt(Exception):
     pass
 
 
-def _tiny(tmp_path, log):
+def _tiny(tmp_path, log, batch=1, name="t3"):
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     specs = t3.plan(("neat",), ("4v3",), ("none", "fitness"), runs=2)
-    return t3.run(tmp_path / "t3", protocol, specs, log=log)
+    return t3.run(tmp_path / name, protocol, specs, log=log, batch=batch)
+
+
+@pytest.mark.slow  # ~60 s: the tiny protocol twice
+def test_the_protocol_in_batched_groups_gives_the_results_of_its_runs_one_by_one(tmp_path):
+    """Every column of results.csv but the times is the same whether the runs train one by one or as
+    batched groups of each cell's runs (sources first), and so is the report but its table of times."""
+    lines = []
+    alone = _tiny(tmp_path, lambda s: None, batch=1, name="alone")
+    grouped = _tiny(tmp_path, lines.append, batch=2, name="grouped")
+    assert lines[0].endswith("6 to run in 3 groups of up to 2 -> " + str((tmp_path / "grouped").absolute()))
+    assert any("2 runs  best" in ln or "gen 2/2" in ln for ln in lines)
+    strip = lambda rows: sorted(  # noqa: E731
+        ({k: str(v) for k, v in r.items() if k not in ("wall_seconds", "generation_seconds")} for r in rows),
+        key=lambda r: t3.row_key(r))
+    assert strip(alone) == strip(grouped)
+    assert strip(t3.read_results(tmp_path / "alone" / "results.csv")) == strip(
+        t3.read_results(tmp_path / "grouped" / "results.csv"))
+    texts = [report.write(tmp_path / d).read_text() for d in ("alone", "grouped")]
+    cut = lambda md: re.sub(r"\n\| (NEAT|HyperNEAT|CMA-ES) \| (source|target) \|[^\n]*", "", md)  # noqa: E731
+    assert cut(texts[0]) == cut(texts[1])
 
 
 def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(tmp_path):

@@ -355,7 +355,8 @@ def test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason(capsys, 
     mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave(state), meta=ocp.args.JsonSave(
         {k: v for k, v in meta.items() if k != "format"})), metrics={"champion_validation": 0.0})
     mgr.wait_until_finished()
-    assert f"checkpoint format 1; this kx reads format {ckpt.FORMAT} (written by an older kx)" in _err(capsys, resume(old))
+    want = f"checkpoint format 1; this kx reads format {ckpt.FORMAT} (written by an older kx)"
+    assert want in _err(capsys, resume(old))
     # a checkpoint of another method, read with this config's method
     other_method = "cma_es" if method == "neat" else "neat"
     foreign = run_lib.Trainer(cfg_lib.load(REPO / METHODS[other_method][1], [

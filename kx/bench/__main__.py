@@ -24,6 +24,9 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``transfer``: for NEAT and HyperNEAT over 5 seeds, the first-generation champion of a 4v3, 5v3 and 6v4
   run seeded with a 3v2 run's final population against that of a fresh run, on the same held-out
   test states of the target.
+* ``runs``: R = 1, 4 and 16 runs of the default config (20 generations) trained as one batched group
+  (``kx.train --seeds``) against the same runs one after another in one process: runs per hour, warm
+  and with compilation, and the ratio.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -33,13 +36,13 @@ from __future__ import annotations
 import argparse
 
 from kx import runtime
-from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, sim, transfer
+from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, runs, sim, transfer
 
 # Each benchmark is a module whose run(args) prints its figures; they import JAX inside run, after
 # kx.runtime.setup() has set up the devices.
 BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
            "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
-           "novelty": novelty.run, "transfer": transfer.run}
+           "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run}
 
 
 def main(argv=None) -> None:
@@ -47,12 +50,14 @@ def main(argv=None) -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(BENCHES))
     p.add_argument("--episodes", type=int, default=4500)
-    p.add_argument("--repeats", type=int, default=3)
+    p.add_argument("--repeats", type=int, default=5, help="sim: samples per figure (the median is reported)")
+    p.add_argument("--sample-seconds", type=float, default=2.0, help="sim: the least work per sample, in seconds")
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20,
                    help="neat_generation, generation, hyperneat: generations to run")
     p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
+    p.add_argument("--group-sizes", default="1,4,16", help="runs: the group sizes R (seeds 0..R-1)")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
     p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
     p.add_argument("--devices", type=int, default=0,

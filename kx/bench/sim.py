@@ -1,35 +1,63 @@
 """``python -m kx.bench sim``: live episode-steps per second of the batched evaluator (heuristic and a small
 neural policy on 4500 episodes of 3v2) and of the step alone, against the plain-Python reference on the
-same rules."""
+same rules.
+
+One evaluation of 4500 short episodes is about 75 ms of work, too little to time once on a shared
+machine (the same code measured 4.1M and 6.4M live-steps/s minutes apart). Each figure is therefore
+the median of ``--repeats`` samples, each sample repeating the work for at least ``--sample-seconds``,
+with the spread (lowest and highest sample) beside it; the reference is sampled the same way."""
 
 from __future__ import annotations
 
 import time
 
 
-def _timed_eval(policy, policy_params, starts, params, config, repeats: int):
+def _samples(work, repeats: int, seconds: float) -> list[tuple[float, int, int]]:
+    """``repeats`` samples of ``work()`` (which returns ``(live steps, executed steps)``), each repeating
+    it for at least ``seconds``: ``(seconds, live steps, executed steps)`` per sample."""
+    out = []
+    for _ in range(repeats):
+        live = executed = 0
+        t0 = time.perf_counter()
+        while True:
+            a, b = work()
+            live, executed = live + a, executed + b
+            dt = time.perf_counter() - t0
+            if dt >= seconds:
+                break
+        out.append((dt, live, executed))
+    return out
+
+
+def _summary(samples) -> tuple[float, float, float]:
+    """Median, lowest and highest rate (live steps per second) of ``samples``."""
+    import numpy as np
+
+    rates = [live / dt for dt, live, _ in samples]
+    return float(np.median(rates)), min(rates), max(rates)
+
+
+def _timed_eval(policy, policy_params, starts, params, config, repeats: int, seconds: float):
     import jax
 
     from kx.sim import evaluate as ev
 
     key = jax.random.key(1)  # the kick noise (on by default)
-    ev.evaluate(policy, policy_params, starts, params, config, key=key)  # compile every width once
-    best = None
-    for _ in range(repeats):
+    first = ev.EvalCounters()
+    stats = ev.evaluate(policy, policy_params, starts, params, config, key=key, counters=first)  # compiles
+
+    def work():
         c = ev.EvalCounters()
-        t0 = time.perf_counter()
-        stats = ev.evaluate(policy, policy_params, starts, params, config, counters=c, key=key)
-        jax.block_until_ready(stats.fitness)
-        dt = time.perf_counter() - t0
-        if best is None or c.live_steps / dt > best[0].live_steps / best[1]:
-            best = (c, dt, stats)
-    return best
+        jax.block_until_ready(ev.evaluate(policy, policy_params, starts, params, config, counters=c, key=key).fitness)
+        return c.live_steps, c.executed_steps
+
+    return _samples(work, repeats, seconds), first, stats
 
 
-def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[float, int]:
-    """Steps per second of the reference, on episodes from the same reset, holding unless a taker
-    is within 2 king moves and then passing to a random teammate (plain Python decisions), with the
-    kick noise of ``params`` drawn per iteration like the evaluator's."""
+def _reference_samples(config, params, repeats: int, seconds: float, seed: int = 0):
+    """Samples (:func:`_samples`) of the reference's steps, on episodes from the same reset, holding
+    unless a taker is within 2 king moves and then passing to a random teammate (plain Python
+    decisions), with the kick noise of ``params`` drawn per iteration like the evaluator's."""
     import jax
     import numpy as np
 
@@ -39,10 +67,12 @@ def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[floa
     starts = env.as_numpy(env.reset_batch(jax.random.key(seed), 256, params, config))
     rng = np.random.default_rng(seed)
     s_max = int(env.noise_limit(params.kick_noise_deg))
-    steps, t0, i = 0, time.perf_counter(), 0
-    while time.perf_counter() - t0 < seconds:
+    episode = iter(range(10**9))
+
+    def work():
+        i = next(episode)
         s = ref.RefState.from_arrays({k: v[..., i % 256] for k, v in starts.items()})
-        i += 1
+        steps = 0
         while not s.done:
             a = s.holder
             if s.holder >= 0 and min(ref.cheb(s.keepers[s.holder], t) for t in s.takers) <= 2:
@@ -51,7 +81,14 @@ def _reference_rate(config, params, seconds: float, seed: int = 0) -> tuple[floa
             s = ref.step(s, a, noise, config, int(params.max_iterations), int(params.taker_reaction_delay),
                          int(params.tackle_iterations))
             steps += 1
-    return steps / (time.perf_counter() - t0), steps
+        return steps, steps
+
+    return _samples(work, repeats, seconds)
+
+
+def _fmt(summary) -> str:
+    med, lo, hi = summary
+    return f"{med:,.0f}/s (median; samples {lo:,.0f} to {hi:,.0f}, spread {100 * (hi - lo) / med:.0f}%)"
 
 
 def run(args) -> None:
@@ -66,21 +103,23 @@ def run(args) -> None:
           f"{params.tackle_iterations}, kick noise {params.kick_noise_deg} degrees")
     starts = env.reset_batch(jax.random.key(args.seed), args.episodes, params, config)
 
-    c, dt, stats = _timed_eval(policies.heuristic(config), None, starts, params, config, args.repeats)
-    heur = c.live_steps / dt
-    print(f"heuristic: {c.live_steps} live steps in {dt:.3f} s = {heur:.0f} live-steps/s; "
-          f"executed {c.executed_steps} lane-steps ({c.live_steps / c.executed_steps:.2f} live); "
-          f"widths {list(c.widths)}; mean fitness {float(stats.fitness.mean()):.4f}")
+    reps, sec = args.repeats, args.sample_seconds
+    print(f"each figure: the median of {reps} samples of at least {sec} s of work each", flush=True)
+    samples, c, stats = _timed_eval(policies.heuristic(config), None, starts, params, config, reps, sec)
+    heur = _summary(samples)
+    print(f"heuristic: {_fmt(heur)} live episode-steps; one evaluation: {c.live_steps} live steps, executed "
+          f"{c.executed_steps} lane-steps ({c.live_steps / c.executed_steps:.2f} live) in {c.chunks} calls; widths "
+          f"{list(c.widths)}; {len(samples) and samples[0][1] // c.live_steps} evaluations per sample; mean fitness "
+          f"{float(stats.fitness.mean()):.4f}", flush=True)
 
     n_pol = 150
     trials = jax.tree.map(lambda a: a[..., : args.episodes // n_pol], starts)
     mlp = policies.mlp_init(jax.random.key(args.seed + 1), n_pol, config)
-    c2, dt2, stats2 = _timed_eval(policies.mlp_policy(config), mlp, trials, params, config, args.repeats)
-    nn_rate = c2.live_steps / dt2
-    print(f"mlp 13-8-3 ({n_pol} networks x {args.episodes // n_pol} trials): {c2.live_steps} live steps in "
-          f"{dt2:.3f} s = {nn_rate:.0f} live-steps/s; executed {c2.executed_steps} "
-          f"({c2.live_steps / max(c2.executed_steps, 1):.2f} live); mean fitness "
-          f"{float(stats2.fitness.mean()):.4f}")
+    samples2, c2, stats2 = _timed_eval(policies.mlp_policy(config), mlp, trials, params, config, reps, sec)
+    nn_rate = _summary(samples2)
+    print(f"mlp 13-8-3 ({n_pol} networks x {args.episodes // n_pol} trials): {_fmt(nn_rate)} live episode-steps; "
+          f"executed {c2.executed_steps} ({c2.live_steps / max(c2.executed_steps, 1):.2f} live); mean fitness "
+          f"{float(stats2.fitness.mean()):.4f}", flush=True)
 
     # The step alone: 400 lockstep iterations of 4096 lanes with no narrowing (finished lanes are
     # stepped too), so that the per-call costs of the evaluator's ladder do not count.
@@ -89,17 +128,19 @@ def run(args) -> None:
     from kx.sim import evaluate as ev
     lanes = jax.tree.map(lambda a: a[..., :4096], starts)
     n_lanes = int(lanes.done.shape[-1])  # 4096, or every episode when there are fewer
-    lock = lambda: ev.lockstep(policies.heuristic(config), None, lanes, params, config,  # noqa: E731
-                               key=jax.random.key(1), iterations=400)
-    np.asarray(lock()[1])
-    t0 = time.perf_counter()
-    np.asarray(lock()[1])
-    lock_rate = 400 * n_lanes / (time.perf_counter() - t0)
-    print(f"the step alone (heuristic, {n_lanes} lanes in lockstep for 400 iterations, finished lanes included): "
-          f"{lock_rate:.0f} lane-steps/s")
 
-    ref_rate, ref_steps = _reference_rate(config, params, args.reference_seconds, args.seed)
-    print(f"reference (plain Python, one episode at a time): {ref_steps} steps = {ref_rate:.0f} steps/s")
-    print(f"mlp: {nn_rate:.0f} live-steps/s (ratio {nn_rate / ref_rate:.1f} vs reference)")
-    print(f"step alone: {lock_rate:.0f} lane-steps/s (ratio {lock_rate / ref_rate:.1f} vs reference)")
-    print(f"sim: {heur:.0f} live-steps/s (ratio {heur / ref_rate:.1f} vs reference)")
+    def lock():
+        np.asarray(ev.lockstep(policies.heuristic(config), None, lanes, params, config, key=jax.random.key(1),
+                               iterations=400)[1])
+        return 400 * n_lanes, 400 * n_lanes
+
+    lock()
+    lock_rate = _summary(_samples(lock, reps, sec))
+    print(f"the step alone (heuristic, {n_lanes} lanes in lockstep for 400 iterations, finished lanes included): "
+          f"{_fmt(lock_rate)} lane-steps", flush=True)
+
+    ref_rate = _summary(_reference_samples(config, params, reps, args.reference_seconds / reps, args.seed))
+    print(f"reference (plain Python, one episode at a time): {_fmt(ref_rate)} steps")
+    print(f"mlp: {nn_rate[0]:.0f} live-steps/s (ratio {nn_rate[0] / ref_rate[0]:.1f} vs reference)")
+    print(f"step alone: {lock_rate[0]:.0f} lane-steps/s (ratio {lock_rate[0] / ref_rate[0]:.1f} vs reference)")
+    print(f"sim: {heur[0]:.0f} live-steps/s (ratio {heur[0] / ref_rate[0]:.1f} vs reference)")

@@ -215,10 +215,11 @@ def progress_line(rows: list[dict], total: int, eta: float | None, seconds: floa
 
 
 def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[str | pathlib.Path], *,
-                resume: bool = False, overwrite: bool = False,
+                resume: bool | Sequence[bool] = False, overwrite: bool = False,
                 log: Callable[[str], None] = print) -> list[dict | None]:
     """Trains (or resumes) the runs of ``cfgs`` (one config per run, equal but in :data:`VARYING`) in
-    ``run_dirs`` as one batched group; returns each run's final metrics row.
+    ``run_dirs`` as one batched group; returns each run's final metrics row. ``resume``: for every run,
+    or one flag per run (a protocol resumes the runs a kill interrupted and starts the others).
 
     Each run directory is what :func:`kx.evolve.run.train` writes for that config alone, and can be
     resumed alone; a group whose runs were cut at different generations (a kill between two runs'
@@ -230,18 +231,21 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
     if len(set(run_dirs)) != len(run_dirs):
         raise RunError("--workdir: two runs of the group would share a run directory")
     check_group(cfgs)
-    for d in run_dirs:
+    resumes = [bool(resume)] * len(cfgs) if isinstance(resume, bool) else [bool(r) for r in resume]
+    if len(resumes) != len(cfgs):
+        raise RunError(f"resume: {len(resumes)} flags for {len(cfgs)} runs")
+    for d, res in zip(run_dirs, resumes):
         if d.exists() and not d.is_dir():
             raise RunError(f"--workdir: {d} is a file, not a run directory")
         if not overwrite:
-            run_lib.prepare_run_dir(d, resume, False)  # refuses now, before any run is written
+            run_lib.prepare_run_dir(d, res, False)  # refuses now, before any run is written
     with contextlib.ExitStack() as stack:
         for d in run_dirs:
             stack.enter_context(RunLock(d, log))
         group = RunGroup.from_configs(cfgs)
-        runs = [run_lib.open_run(t, d, resume=resume, overwrite=overwrite, step=None,
+        runs = [run_lib.open_run(t, d, resume=res, overwrite=overwrite, step=None,
                                  log=lambda s, seed=t.cfg.seed: log(f"[seed {seed}] {s}"))
-                for t, d in zip(group.trainers, run_dirs)]
+                for t, d, res in zip(group.trainers, run_dirs, resumes)]
         for run in runs:
             run.quiet = True
         total = cfgs[0].generations

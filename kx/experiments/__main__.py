@@ -40,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--target-generations", type=int, default=50)
     t.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                    help="a config override for every run (population_size=50, trials=10, ...); repeatable")
+    t.add_argument("--batch", type=int, default=16,
+                   help="runs of one cell trained as one batched group (kx.evolve.group), at most; 1: one by one")
     r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
     r.add_argument("dir")
     s = sub.add_parser("sweep", help="every combination of a grid x seeds")
@@ -50,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--test-trials", type=int, default=1000)
     s.add_argument("--test-seed", type=int, default=0)
     s.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
+    s.add_argument("--batch", type=int, default=16,
+                   help="seeds of one combination trained as one batched group, at most; 1: one by one")
     args = p.parse_args(argv)
 
     from kx.evolve.config import ConfigError
@@ -76,13 +80,13 @@ def main(argv: list[str] | None = None) -> int:
                                    source_generations=args.source_generations,
                                    target_generations=args.target_generations, overrides=tuple(args.set))
             specs = t3.plan(args.methods, args.targets, args.setups, args.runs)
-            t3.run(args.out, protocol, specs)
+            t3.run(args.out, protocol, specs, batch=args.batch)
             print(report.write(args.out))
         else:
             from kx.experiments import sweep
             sw = sweep.Sweep(config=args.config, grid=sweep.parse_grid(args.grid), seeds=sweep.parse_seeds(args.seeds),
                              test_trials=args.test_trials, test_seed=args.test_seed, overrides=tuple(args.set))
-            sweep.run(args.out, sw)
+            sweep.run(args.out, sw, batch=args.batch)
             print(sweep.write_report(args.out))
         return 0
     except (ValueError, ConfigError, RunError) as e:

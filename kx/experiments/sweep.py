@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from kx.evolve import config as cfg_lib
+from kx.evolve import group as group_lib
 from kx.evolve import protocol as evolve_protocol
 from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
@@ -100,8 +101,12 @@ def read_results(path: pathlib.Path) -> list[dict]:
     return csvfile.read(path, FIELDS, "kx sweep results file")
 
 
-def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print) -> list[dict]:
-    """Runs every (combination, seed) not yet in ``out/results.csv``; returns all rows."""
+def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
+    """Runs every (combination, seed) not yet in ``out/results.csv``, the seeds of each combination in
+    batched groups of up to ``batch`` (:mod:`kx.evolve.group`; 1: one by one; each run's results are the
+    same either way, its ``wall_seconds`` its share of its group's); returns all rows."""
+    if not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     combos = sweep.combinations()
     for c in combos:  # every config checked before any compute
@@ -117,27 +122,37 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
         run_report.write_json(spec_path, sweep.to_json())
     rows = read_results(out / "results.csv")
     done = {(r["combination"], int(r["seed"])) for r in rows}
-    todo = [(c, s) for c in combos for s in sweep.seeds if (slug(c), s) not in done]
     total = len(combos) * len(sweep.seeds)
-    log(f"kx sweep: {total} runs, {total - len(todo)} done, {len(todo)} to run -> {out}")
-    for k, (c, seed) in enumerate(todo):
-        cfg = _config(sweep, c, seed)
-        d = out / "runs" / slug(c) / f"seed{seed}"
-        prefix = f"[{total - len(todo) + k}/{total} runs | {' '.join(c)} seed {seed}]"
+    todo = [(c, [s for s in sweep.seeds if (slug(c), s) not in done]) for c in combos]
+    chunks = [(c, seeds[i:i + batch]) for c, seeds in todo for i in range(0, len(seeds), batch)]
+    n_done = total - sum(len(seeds) for _, seeds in todo)
+    log(f"kx sweep: {total} runs, {n_done} done, {total - n_done} to run -> {out}")
+    for c, seeds in chunks:
+        cfgs = [_config(sweep, c, seed) for seed in seeds]
+        dirs = [out / "runs" / slug(c) / f"seed{seed}" for seed in seeds]
+        resume = [(d / "config.json").is_file() for d in dirs]
+        which = f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}"
+        prefix = f"[{n_done}/{total} runs | {' '.join(c)} {which}]"
+        show = lambda s: log(f"{prefix} {' '.join(s.split()[:6])}") if s.startswith("gen ") else None  # noqa: E731
         t0 = time.perf_counter()
-        run_lib.train(cfg, d, resume=(d / "config.json").is_file(),
-                      log=lambda s: log(f"{prefix} {' '.join(s.split()[:4])}") if s.startswith("gen ") else None)
-        _, state, test = evolve_protocol.champion_on_test(d, sweep.test_seed, sweep.test_trials)
-        with (d / "metrics.csv").open() as f:
-            best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
-        rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,
-                     "method": cfg.method, "generations": cfg.generations,
-                     "episodes": cfg.generations * cfg.population_size * cfg.trials, "max_fitness": best,
-                     "test_fitness": test, "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
-                     "champion_generation": int(state.champion_generation),
-                     "wall_seconds": round(time.perf_counter() - t0, 3)})
-        csvfile.write(out / "results.csv", FIELDS, rows)
-        log(f"{prefix} test {test:.4f}, max fitness {best:.4f}")
+        if len(seeds) == 1:
+            run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=show)
+        else:
+            group_lib.train_group(cfgs, dirs, resume=resume, log=show)
+        wall = time.perf_counter() - t0
+        for cfg, seed, d in zip(cfgs, seeds, dirs):
+            _, state, test = evolve_protocol.champion_on_test(d, sweep.test_seed, sweep.test_trials)
+            with (d / "metrics.csv").open() as f:
+                best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
+            rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,
+                         "method": cfg.method, "generations": cfg.generations,
+                         "episodes": cfg.generations * cfg.population_size * cfg.trials, "max_fitness": best,
+                         "test_fitness": test, "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
+                         "champion_generation": int(state.champion_generation),
+                         "wall_seconds": round(wall / len(seeds), 3)})
+            csvfile.write(out / "results.csv", FIELDS, rows)
+            n_done += 1
+            log(f"[{n_done}/{total} runs | {' '.join(c)} seed {seed}] test {test:.4f}, max fitness {best:.4f}")
     return rows
 
 

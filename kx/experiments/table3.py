@@ -20,6 +20,12 @@ states of the target for every run: the test stream of the protocol seed), both 
 the budget and the times. A finished run is never run again; the same ``DIR`` accumulates parts
 (``--methods``, ``--targets``, ``--setups``, ``--runs``) of one protocol, whose fixed parameters are in
 ``DIR/protocol.json``.
+
+The runs of one cell (method, setup, phase, task) share a config but for their seeds and sources, so
+they train as batched groups of up to ``batch`` runs (:mod:`kx.evolve.group`; the sources before the
+targets they seed), each run in its own run directory, bit for bit what it writes trained alone: every
+column of results.csv but the times is the same whatever ``batch``. A run of a group of R is charged
+1/R of the group's time (``wall_seconds``, ``generation_seconds``).
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from typing import Callable, Iterable
 import ml_collections
 
 from kx.evolve import config as cfg_lib
+from kx.evolve import group as group_lib
 from kx.evolve import protocol as evolve_protocol
 from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
@@ -202,9 +209,10 @@ def _open(out: pathlib.Path, protocol: Protocol) -> None:
         run_report.write_json(path, want)
 
 
-def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float) -> dict:
+def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float, share: int = 1) -> dict:
     """The results row of a finished run: its metrics.csv curves, and its validated champion on the
-    protocol's test states of its task."""
+    protocol's test states of its task. ``share``: the size of the batched group it trained in (it is
+    charged that share of ``wall`` and of the generations' times)."""
     d = run_dir(out, spec)
     trainer, state, test = evolve_protocol.champion_on_test(d, protocol.seed, protocol.test_trials)
     with (d / "metrics.csv").open() as f:
@@ -223,8 +231,8 @@ def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float) -
         "source_episodes": src_evals, "max_fitness": max(float(r["best_fitness"]) for r in rows),
         "test_fitness": test, "test_trials": protocol.test_trials,
         "champion_generation": int(state.champion_generation), "protocol_seed": protocol.seed,
-        "wall_seconds": round(wall, 3),
-        "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows), 3),
+        "wall_seconds": round(wall / share, 3),
+        "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows) / share, 3),
         "best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
         "best_validation": " ".join(format(float(r["best_validation"]), ".9g") for r in rows),
     }
@@ -240,12 +248,12 @@ class _Progress:
         self.last = None
         self.current = None
 
-    def start(self, spec: RunSpec):
-        self.current, self.last = spec, None
+    def start(self, spec: RunSpec, what: str | None = None):
+        self.current, self.last, self.what = spec, None, what or spec.describe()
 
-    def finish(self):
+    def finish(self, n: int = 1):
         self.todo.pop(0)
-        self.done += 1
+        self.done += n
 
     def _rate(self, method: str, task: str) -> float | None:
         if self.per_gen.get((method, task)):
@@ -265,7 +273,7 @@ class _Progress:
 
     def line(self, text: str):
         spec = self.current
-        m = re.match(r"gen\s+(\d+)/(\d+)\s+best\s+(\S+)", text)
+        m = re.match(r"gen\s+(\d+)/(\d+)\s+(?:\d+ runs\s+)?best\s+(\S+)", text)
         if m:
             now = time.perf_counter()
             if self.last is not None:  # the first generation of a process compiles: not a rate
@@ -273,17 +281,45 @@ class _Progress:
             self.last = now
             eta = self.eta(int(m.group(1)))
             when = "" if eta is None else f"  protocol ETA {run_report.format_seconds(eta)}"
-            self.log(f"[{self.done}/{self.total} runs | {spec.describe()}] gen {m.group(1)}/{m.group(2)}  "
+            self.log(f"[{self.done}/{self.total} runs | {self.what}] gen {m.group(1)}/{m.group(2)}  "
                      f"best {m.group(3)}{when}")
-        elif not text.startswith(("validation states", "kx.train:", "done:", "transfer:")):
-            self.log(f"[{self.done}/{self.total} runs | {spec.describe()}] {text}")
+        elif not re.sub(r"^\[seed \d+\] ", "", text).startswith(("validation states", "kx.train:", "done:",
+                                                                     "transfer:")):
+            self.log(f"[{self.done}/{self.total} runs | {self.what}] {text}")
+
+
+def cell(spec: RunSpec) -> tuple:
+    """The runs that can train as one batched group: those of one method, setup, phase and task."""
+    return spec.key[:4]
+
+
+def groups(needed: list[RunSpec], batch: int) -> list[list[RunSpec]]:
+    """``needed`` dealt into batched groups of at most ``batch`` runs of one :func:`cell`: the sources'
+    groups first (every target's source is then finished before it starts), each cell in the order of
+    its first run. ``batch`` 1: every run alone, in ``needed``'s order (the plan's: run index by run
+    index, each method's sources first)."""
+    if batch == 1:
+        return [[spec] for spec in needed]
+    cells: dict[tuple, list[RunSpec]] = {}
+    for spec in sorted(needed, key=lambda s: s.phase != "source"):  # stable: the plan's order otherwise
+        cells.setdefault(cell(spec), []).append(spec)
+    return [specs[i:i + batch] for specs in cells.values() for i in range(0, len(specs), batch)]
+
+
+def _span(specs: list[RunSpec]) -> str:
+    runs = [s.run for s in specs]
+    which = f"run {runs[0]}" if len(runs) == 1 else f"runs {','.join(map(str, runs))}"
+    return specs[0].describe().rsplit(" run ", 1)[0] + " " + which
 
 
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
-        log: Callable[[str], None] = print) -> list[dict]:
+        log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
     """Runs every run of ``specs`` not yet in ``out/results.csv`` (a transfer run's source first, even if
-    not selected), each resumed from its checkpoint if a previous protocol was killed during it; appends
-    each finished run's row. Returns the rows of ``specs``."""
+    not selected), in batched groups of up to ``batch`` runs of one cell (1: one by one), each run resumed
+    from its checkpoint if a previous protocol was killed during it; appends each finished run's row.
+    Returns the rows of ``specs``."""
+    if not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     for spec in specs:  # every config checked before any compute
         config(protocol, spec, out)
@@ -298,22 +334,31 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             if s.key not in have and s not in needed:
                 needed.append(s)
     total = len({s.key for s in specs} | {s.key for s in needed})
-    progress = _Progress(log, [(s, config(protocol, s, out).generations) for s in needed], total - len(needed), total)
-    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run -> {out}")
-    for spec in needed:
-        cfg = config(protocol, spec, out)
-        d = run_dir(out, spec)
-        resume = (d / "config.json").is_file()
-        progress.start(spec)
-        log(f"[{progress.done}/{total} runs] {spec.describe()}: seed {cfg.seed}, {cfg.generations} generations"
-            + (" (resumed)" if resume else ""))
+    chunks = groups(needed, batch)
+    progress = _Progress(log, [(c[0], config(protocol, c[0], out).generations) for c in chunks],
+                         total - len(needed), total)
+    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run in {len(chunks)} groups of up to "
+        f"{batch} -> {out}")
+    for chunk in chunks:
+        cfgs = [config(protocol, spec, out) for spec in chunk]
+        dirs = [run_dir(out, spec) for spec in chunk]
+        resume = [(d / "config.json").is_file() for d in dirs]
+        progress.start(chunk[0], _span(chunk))
+        log(f"[{progress.done}/{total} runs] {_span(chunk)}: seeds {', '.join(str(c.seed) for c in cfgs)}, "
+            f"{cfgs[0].generations} generations" + (f" ({sum(resume)} resumed)" if any(resume) else ""))
         t0 = time.perf_counter()
-        run_lib.train(cfg, d, resume=resume, log=progress.line)
-        row = measure(protocol, spec, out, time.perf_counter() - t0)
-        rows.append(row)
-        csvfile.write(results_path, FIELDS, rows)
-        progress.finish()
-        log(f"[{progress.done}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
-            f"{row['test_fitness']:.4f} ({row['wall_seconds']:.0f} s)")
+        if len(chunk) == 1:
+            run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=progress.line)
+        else:
+            group_lib.train_group(cfgs, dirs, resume=resume, log=progress.line)
+        wall = time.perf_counter() - t0
+        for spec in chunk:
+            row = measure(protocol, spec, out, wall, share=len(chunk))
+            rows.append(row)
+            csvfile.write(results_path, FIELDS, rows)
+            log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
+                f"{row['test_fitness']:.4f}")
+            progress.done += 1
+        progress.finish(0)
     want = {s.key for s in specs}
     return [r for r in rows if row_key(r) in want]

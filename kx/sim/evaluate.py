@@ -1,11 +1,15 @@
 """Batched evaluation of G policies on T shared start states, paying only for live episodes.
 
 Every (policy, trial) pair is a *lane*; lanes are batch-last arrays stepped in lockstep by a jitted
-``while_loop`` that returns once the live lanes fit the next narrower width on a ladder of widths (or
-after ``chunk`` iterations); the host then gathers the live lanes into that narrower batch. Each
-width compiles once per (policy, task) and is reused across generations. A batch whose episodes end
-early therefore costs about what its live steps cost, and the results equal those of each episode run
-alone (lanes never interact; the tests check this).
+``while_loop``. The batch narrows as episodes end, down a ladder of widths (:func:`width_ladder`,
+:func:`rungs`): each *rung* is one compiled call that steps its lanes until the live ones fit the next
+narrower width and then gathers them into it, on the device. The rungs are dispatched back to back and
+the host waits for none of them: it reads their counters once, when the last has run, so short
+episodes pay no host round trips. Each rung compiles once per (policy, task, width) and is reused
+across generations. A batch whose episodes end early therefore costs about what its live steps cost,
+and the results equal those of each episode run alone (lanes never interact; the tests check this).
+The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
+``key`` in :func:`evaluate`.
 
 Policies take their parameters in one of two ways (:class:`kx.sim.policies.Policy`, ``shared``). Per
 lane, each lane carries a copy of its policy's parameter set, batch-last like the state, gathered with
@@ -40,7 +44,8 @@ from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
 
 @dataclasses.dataclass
 class EvalCounters:
-    """What an evaluation executed: lane-steps stepped in lockstep and those of live episodes."""
+    """What an evaluation executed: lane-steps stepped in lockstep and those of live episodes, the
+    compiled calls (rungs) it dispatched and the widths that stepped at least once."""
 
     executed_steps: int = 0
     live_steps: int = 0
@@ -166,44 +171,64 @@ def lockstep(policy: Policy, lane_params: Any, lanes: State, params: KeepAwayPar
                     np.int32(iterations), np.int32(-1), policy=policy, config=config, n_dev=jax.local_device_count())
 
 
-@functools.partial(jax.jit, static_argnames=("width", "n_dev"))
-def _compact(state: State, lane_params: Any, noise_word, lane_id, *, width: int, n_dev: int):
-    """On each device, the ``width // n_dev`` of its lanes that come first when live lanes are put before
-    finished ones: lanes never move between devices, so the arrays stay where :func:`_advance` keeps them
-    (the caller picks a width whose share holds every device's live lanes)."""
-
-    def local(state, lane_params, noise_word, lane_id):
-        order = jnp.argsort(state.done, stable=True)[: width // n_dev]
-        take = lambda a: jnp.take(a, order, axis=-1)  # noqa: E731
-        return (jax.tree.map(take, state), jax.tree.map(take, lane_params), take(noise_word), take(lane_id))
-
-    if n_dev == 1:
-        return local(state, lane_params, noise_word, lane_id)
-    mesh = _mesh(n_dev)
-    args = (state, lane_params, noise_word, lane_id)
-    return jax.shard_map(local, mesh=mesh, in_specs=_lane_specs(args), out_specs=_lane_specs(args),
-                         check_vma=False)(*args)
-
-
-# A call returns to the host (to narrow the batch) only once the live lanes fit a width at most this
-# share of the current one: every return costs a host sync, a record and a compaction (about 1-2 ms on
-# 2 CPU devices), which a batch of short episodes cannot afford at every rung of the ladder. Measured on
-# 4500 heuristic episodes of 3v2 with a one-off development script (`python -m kx.bench sim` with this
-# value changed reproduces the first figure of each pair): 1.0 (every rung) 6.3M live-steps/s with
-# today's rules, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M; with the first rules (long episodes) 15.9M, 16.0M,
-# 14.9M, 13.6M.
+# The rungs of the ladder an evaluation steps through: from a width, the next is the widest one at most
+# this share of it. Each rung is one compiled call that steps its lanes until the live ones fit the next
+# rung, and there compacts them; the calls are dispatched one after another without waiting for each
+# other (no host sync between rungs: the host reads the counters once, at the end). A rung whose lanes
+# already fit the next one costs a compaction only. Measured on 4500 heuristic episodes of 3v2 when the
+# host still returned between calls (a sync, a record and a compaction, 1-2 ms each): 1.0 (every rung)
+# 6.3M live-steps/s, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M.
 SHRINK = 0.8
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum")
 
+# no iteration cap inside a rung: every episode ends by max_iterations, so the loop ends by itself
+_NO_CAP = np.int32(2**31 - 1)
 
-def _record(results: dict, state: State, lane_id) -> None:
-    """Stores the integer counters of every lane in the host arrays ``results`` (finished lanes keep
-    their final values; padding lanes repeat a lane and write the same values). One transfer of a few
-    integers per lane, cheaper than a scatter across devices."""
-    got = jax.device_get(({f: getattr(state, f) for f in COUNTERS}, lane_id))
-    for f in COUNTERS:
-        results[f][got[1]] = got[0][f]
+
+def rungs(ladder: list[int]) -> list[int]:
+    """The widths an evaluation steps through, from ``ladder[0]``: each the widest width of ``ladder`` at
+    most :data:`SHRINK` of the one before."""
+    out = [ladder[0]]
+    while True:
+        nxt = [w for w in ladder if w < out[-1] and w <= SHRINK * out[-1]]
+        if not nxt:
+            return out
+        out.append(nxt[0])
+
+
+@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "width"))
+def _advance_and_compact(state, lane_params, noise_word, lane_id, keys, group_size, params, table=None, *,
+                         policy, config, n_dev, width):
+    """One rung: every lane stepped until the live ones fit ``width`` (0: until every episode has ended),
+    then on each device the ``width // n_dev`` of its lanes that come first when live lanes are put
+    before finished ones (lanes never move between devices). Each device stops on its own count (a
+    global one would need a collective every iteration, which measured slower). Returns the compacted
+    lanes, the counters of every lane before the compaction with its lane id (finished lanes' values
+    are final), and per device the iterations run and the live lanes ``[n_dev, 2]``."""
+
+    def local(state, lane_params, noise_word, lane_id, keys, group_size, params, table):
+        state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
+                                         jnp.int32(width // n_dev), table, policy=policy, config=config)
+        record = ({f: getattr(state, f) for f in COUNTERS}, lane_id)
+        lanes = (state, lane_params, noise_word, lane_id)
+        if width:
+            order = jnp.argsort(state.done, stable=True)[: width // n_dev]
+            lanes = jax.tree.map(lambda a: jnp.take(a, order, axis=-1), lanes)
+        return lanes, record, progress
+
+    if n_dev == 1:
+        return local(state, lane_params, noise_word, lane_id, keys, group_size, params, table)
+    mesh = _mesh(n_dev)
+    lanes_spec = jax.sharding.PartitionSpec("lanes")
+    rep = jax.sharding.PartitionSpec()
+    lanes = (state, lane_params, noise_word, lane_id)
+    in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes_spec, lanes_spec, rep, rep,
+                jax.tree.map(lambda _: rep, params), jax.tree.map(lambda _: rep, table))
+    record_specs = ({f: lanes_spec for f in COUNTERS}, lanes_spec)
+    out_specs = (_lane_specs(lanes), record_specs, jax.sharding.PartitionSpec("lanes", None))
+    return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
+        state, lane_params, noise_word, lane_id, keys, group_size, params, table)
 
 
 @functools.partial(jax.jit, static_argnames=("config",))
@@ -214,8 +239,7 @@ def _finish(results: dict, params: KeepAwayParams, *, config):
 
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
-             config: KeepAwayConfig, *, key: jax.Array | None = None, chunk: int = 4096,
-             first_chunk: int = 64, devices: int | None = None,
+             config: KeepAwayConfig, *, key: jax.Array | None = None, devices: int | None = None,
              counters: EvalCounters | None = None) -> EpisodeStats:
     """Runs every policy on every start state to the end of its episode.
 
@@ -236,9 +260,6 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         - 1``; ``starts`` holds R x T states, run ``r``'s at ``r * T`` to ``(r + 1) * T - 1``; run ``r``'s
         policies meet only its own states with its own key's noise; and the result is ``[R, P, T]``.
         Each run's episodes, and so its results, are those that evaluating it alone gives.
-      chunk: the most iterations per compiled call. A call also returns as soon as its live lanes
-        fit the next narrower width, so the batch narrows without waiting for the chunk to end; calls
-        start at ``first_chunk`` iterations and double.
       devices: split the lanes over this many local devices (default: all). On a CPU, run with
         ``XLA_FLAGS=--xla_force_host_platform_device_count=<cores>`` to get one device per core.
       counters: if given, filled with executed and live lane-steps.
@@ -287,36 +308,32 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         state, lane_params, noise_word, lane_id = jax.device_put(
             lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
         table = jax.device_put(table, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
+    # (a few integers per lane) once, at the end.
+    chain = rungs(ladder)
+    records = []
+    for k in range(len(chain)):
+        nxt = chain[k + 1] if k + 1 < len(chain) else 0
+        lanes, record, progress = _advance_and_compact(state, lane_params, noise_word, lane_id, keys,
+                                                       np.int32(group_size), params, table, policy=policy,
+                                                       config=config, n_dev=n_dev, width=nxt)
+        state, lane_params, noise_word, lane_id = lanes
+        records.append((record, progress))
+    records = jax.device_get(records)
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
-    widths = [width]
-    this_chunk = max(1, min(first_chunk, chunk))
-    while True:
-        narrower = [w for w in ladder if w < width and w <= SHRINK * width]
-        stop_at = np.int32(narrower[0] if narrower else 0)
-        state, progress = _advance(state, lane_params, noise_word, lane_id, keys, np.int32(group_size), params,
-                                   np.int32(this_chunk), stop_at, table, policy=policy, config=config,
-                                   n_dev=n_dev)
-        this_chunk = min(2 * this_chunk, chunk)
-        progress = np.asarray(jax.device_get(progress))  # one host sync per call
-        n_live = int(progress[:, 1].sum())
-        if counters is not None:
-            counters.chunks += 1
-            counters.executed_steps += int(progress[:, 0].sum()) * (width // n_dev)
-        if n_live == 0:
-            break
-        # the narrowest width whose per-device share holds every device's live lanes
-        target = min(w for w in ladder if w // n_dev >= int(progress[:, 1].max()))
-        if target < width:
-            _record(results, state, lane_id)
-            state, lane_params, noise_word, lane_id = _compact(state, lane_params, noise_word, lane_id,
-                                                               width=target, n_dev=n_dev)
-            width = target
-            widths.append(width)
-    _record(results, state, lane_id)
+    for (values, ids), _ in records:  # later rungs overwrite the lanes still live at earlier ones
+        for f in COUNTERS:
+            results[f][ids] = values[f]  # padding lanes repeat a lane and write the same values
+    ran = [int(np.asarray(p)[:, 0].max()) for _, p in records]
+    if counters is not None:
+        counters.chunks += len(chain)
+        counters.executed_steps += sum(int(np.asarray(p)[:, 0].sum()) * (w // n_dev)
+                                       for (_, p), w in zip(records, chain))
+        widths = tuple(w for i, w in enumerate(chain) if i == 0 or ran[i] > 0)
     results = _finish(results, params, config=config)
     if counters is not None:
         counters.live_steps += int(jnp.sum(results.iterations))
-        counters.widths = tuple(widths)
+        counters.widths = widths
     shape = (n_groups, n_pol, n_trials) if grouped else (n_pol, n_trials)
     return jax.tree.map(lambda a: a.reshape(a.shape[:-1] + shape), results)
 
