@@ -178,7 +178,7 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     lines = []
     rows = _tiny(tmp_path, lines.append)
     assert lines[0].startswith("kx table3: 6 runs, 3 done, 3 to run")
-    assert any("source (fitness) run 1: seed" in ln and ln.endswith("(resumed)") for ln in lines)
+    assert any("source (fitness) run 1: seeds" in ln and ln.endswith("(1 resumed)") for ln in lines)
     assert not any("run 0" in ln for ln in lines[1:])  # nothing of a finished run ran again
     assert stamps == {p: p.stat().st_mtime_ns for p in stamps}  # ... nor was a file of one touched
     assert [t3.row_key(r) for r in rows] == [t3.row_key(r) for r in t3.read_results(out / "results.csv")]

@@ -337,8 +337,8 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     chunks = groups(needed, batch)
     progress = _Progress(log, [(c[0], config(protocol, c[0], out).generations) for c in chunks],
                          total - len(needed), total)
-    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run in {len(chunks)} groups of up to "
-        f"{batch} -> {out}")
+    grouped = f" in {len(chunks)} groups of up to {batch}" if batch > 1 and chunks else ""
+    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run{grouped} -> {out}")
     for chunk in chunks:
         cfgs = [config(protocol, spec, out) for spec in chunk]
         dirs = [run_dir(out, spec) for spec in chunk]
