@@ -7,7 +7,10 @@ timed alone; the figure for R is the sum of seeds 0..R-1's times. Compilation is
 same pass (JAX's tracing, lowering and backend-compile events), and each program is compiled once in
 the process: the warm figure is the wall time less the compilation that happened inside it. Each
 group's runs are checked against the same seeds alone (every metrics row but the execution figures).
-The last line is the ratio at the largest R.
+Before the timed runs, each side runs untimed once on other seeds (a run alone for 3 generations; a
+group of R for one generation), so that neither side's figure carries the process's first-call costs
+(loading programs from the persistent cache, first dispatches); their compilation counts in the
+compilation figure of their side. The last line is the ratio at the largest R.
 """
 
 from __future__ import annotations
@@ -50,7 +53,15 @@ def run(args) -> None:
             for s in range(max(sizes))]
     strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
 
-    # the runs one after another: each seed alone, timed
+    warm_seed = 10_000  # seeds of the untimed warm-up runs, outside the timed ones
+
+    def other(seed, generations):
+        return cfg_lib.load(args.config, [f"generations={generations}", "gif=false", f"seed={seed}"])
+
+    # the runs one after another: each seed alone, timed, after an untimed warm-up run
+    compiled0 = clock.seconds
+    run_lib.evolve_in_memory(run_lib.Trainer(other(warm_seed, 3)))
+    warm_compile_alone = clock.seconds - compiled0
     alone, alone_rows = [], []
     for c in cfgs:
         compiled0, t0 = clock.seconds, time.perf_counter()
@@ -62,6 +73,10 @@ def run(args) -> None:
               f"{rows[-1]['best_validation']:.4f}", flush=True)
     results = []
     for r in sizes:
+        compiled0 = clock.seconds
+        warm_group = group_lib.RunGroup.from_configs([other(warm_seed + 1 + i, 1) for i in range(r)])
+        warm_group.step(warm_group.init())
+        warm_compile = clock.seconds - compiled0
         compiled0, t0 = clock.seconds, time.perf_counter()
         group = group_lib.RunGroup.from_configs(cfgs[:r])
         state, rows = group.init(), []
@@ -71,10 +86,13 @@ def run(args) -> None:
         jax.block_until_ready(state)
         wall = time.perf_counter() - t0
         compiling = clock.seconds - compiled0
+        warm_b = wall - compiling
+        wall, compiling = wall + warm_compile, compiling + warm_compile  # with the warm-up's compilation
         same = all(strip(rows[g][i]) == alone_rows[i][g] for i in range(r) for g in range(args.generations))
-        one_wall = sum(w for w, _ in alone[:r])
-        one_compile = sum(c for _, c in alone[:r])
-        warm_b, warm_1 = wall - compiling, one_wall - one_compile
+        # with the warm-up's compilation, as on the batched side
+        one_wall = sum(w for w, _ in alone[:r]) + warm_compile_alone
+        one_compile = sum(c for _, c in alone[:r]) + warm_compile_alone
+        warm_1 = one_wall - one_compile
         ratio = warm_1 / warm_b
         results.append((r, ratio, warm_b))
         print(f"R = {r:3d}: batched {wall:.1f} s ({compiling:.1f} s compiling, {warm_b:.1f} s warm) = "
