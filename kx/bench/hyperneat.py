@@ -113,9 +113,14 @@ def _time_per_lane(fn, state, params, reps: int = 40, samples: int = 5) -> float
 
     @jax.jit
     def loop(params, state):
-        def body(i, acc):
-            return acc + fn(params, state.replace(t=state.t + i)).astype(jnp.float32)
-        return jax.lax.fori_loop(0, reps, body, jnp.zeros(state.holder.shape, jnp.float32))
+        def body(i, carry):
+            state, acc = carry
+            acc = acc + fn(params, state).astype(jnp.float32)
+            # the next iteration's state depends on this one's result (a nudge that is always 0, which
+            # XLA cannot prove): the work is redone every iteration instead of hoisted out of the loop
+            nudge = (acc > 3e38).astype(state.keeper_x.dtype)
+            return state.replace(keeper_x=state.keeper_x + nudge[None], t=state.t + 1), acc
+        return jax.lax.fori_loop(0, reps, body, (state, jnp.zeros(state.holder.shape, jnp.float32)))[1]
 
     jax.block_until_ready(loop(params, state))
     times = []
@@ -168,6 +173,7 @@ def _components(runs, args) -> None:
     """Where a lane-step goes, each part timed alone on one core over the 4500 lanes of generation 0
     (150 genomes x 30 trials): the world's step (:func:`kx.sim.env.transition`, with the holder holding),
     the heuristic's decision, and for each method its observation and its whole decision."""
+    import jax
     import jax.numpy as jnp
 
     from kx.evolve import streams
@@ -183,7 +189,12 @@ def _components(runs, args) -> None:
     population, _ = trainer.encoding.ask(streams.learner_ask(args.seed, 0), trainer.init().learner)
     state, neat_params = _lanes(trainer, population, starts)
     zero = jnp.zeros(state.holder.shape, jnp.int32)
-    world = _time_per_lane(lambda p, s: env.transition(s, jnp.maximum(s.holder, 0), zero, sp, sim).t, state, None)
+    def every_field(new):  # the whole next state, so that no part of the step is left out as unused
+        leaves = [a.astype(jnp.float32).reshape(-1, a.shape[-1]) for a in jax.tree.leaves(new)]
+        return sum(x[k] for x in leaves for k in range(x.shape[0]))
+
+    world = _time_per_lane(lambda p, s: every_field(env.transition(s, jnp.maximum(s.holder, 0), zero, sp, sim)),
+                           state, None)
     heur = heuristic(sim)
     h_dec = _time_per_lane(lambda p, s: heur.apply(None, s, None), state, None)
     neat_obs = _time_per_lane(lambda p, s: observe.fixed_obs(s, sim).sum(0), state, None)
