@@ -146,11 +146,14 @@ class Trainer:
     def check(self, state: RunState) -> list[str]:
         """The encoding's invariants of a restored run state."""
         champion = state.champion if int(state.champion_generation) >= 0 else None
-        errs = []
-        if not np.array_equal(np.asarray(state.key), np.asarray(streams.run_key(self.cfg.seed))):
-            errs.append(f"the run key is {np.asarray(state.key).tolist()}, seed {self.cfg.seed}'s is "
-                        f"{np.asarray(streams.run_key(self.cfg.seed)).tolist()}")
-        return errs + self.encoding.check(state.learner, champion)
+        return self.encoding.check(state.learner, champion)
+
+    def key_problem(self, state: RunState) -> str | None:
+        """What is wrong with a restored state's run key (``None``: it is this config's seed's)."""
+        want = np.asarray(streams.run_key(self.cfg.seed))
+        if not np.array_equal(np.asarray(state.key), want):
+            return f"its run key is {np.asarray(state.key).tolist()}, seed {self.cfg.seed}'s is {want.tolist()}"
+        return None
 
     def restore(self, run_dir, step: int | None = None):
         """``(step, state, meta)`` of a checkpoint of ``run_dir`` written with this config's method and shapes."""
@@ -436,6 +439,9 @@ def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite
             diff = cfg_lib.identity_mismatch(meta["config"], cfg)
             if diff:
                 raise RunError(f"checkpoint {got} in {run_dir / 'checkpoints'} was written by another config: {diff}")
+            problem = trainer.key_problem(state)
+            if problem:
+                raise RunError(f"checkpoint {got} in {run_dir / 'checkpoints'} is damaged: {problem}")
             start = int(meta["generation"])
             if start >= cfg.generations:  # the run stays as it is, byte for byte: nothing set aside or rewritten
                 log(f"nothing to do: {start} generations done, {cfg.generations} asked (checkpoint {got} of "
