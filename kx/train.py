@@ -94,6 +94,26 @@ def resolve_bare(cfg, overrides: list[str]) -> list[str]:
     return out
 
 
+def load_config(args, overrides: list[str], run_dir: pathlib.Path):
+    """The config of the command: on ``--resume`` with no ``--config``, the run's own (``run_dir``'s
+    config.json) with this command's overrides (e.g. more generations); else ``--config`` (default
+    ``configs/neat_3v2.py``) with them."""
+    from kx.evolve import config as cfg_lib
+    from kx.evolve.errors import RunError
+
+    if args.resume and args.config is None:
+        saved = run_dir / "config.json"
+        if not saved.is_file():
+            raise RunError(f"--resume: {run_dir} holds no run to resume (no config.json)")
+        base = cfg_lib.read_run_config(saved)
+        cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
+        cfg.lock()
+        return cfg
+    if any("=" not in o for o in overrides):
+        overrides = resolve_bare(cfg_lib.load(args.config), overrides)
+    return cfg_lib.load(args.config, overrides)
+
+
 def parse_seeds(text: str) -> list[int]:
     """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]`` (``ConfigError`` naming ``--seeds`` otherwise)."""
     from kx.evolve.errors import ConfigError
@@ -140,17 +160,7 @@ def main_group(args, overrides) -> int:
             raise RunError("--step: not with --seeds (resume one run with its own --workdir)")
         if args.resume and not args.workdir:
             raise RunError("--resume: name the group with --workdir")
-        if args.resume and args.config is None:
-            saved = pathlib.Path(args.workdir) / f"seed{seeds[0]}" / "config.json"
-            if not saved.is_file():
-                raise RunError(f"--resume: {saved.parent} holds no run to resume (no config.json)")
-            base = cfg_lib.read_run_config(saved)
-            cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
-            cfg.lock()
-        else:
-            if any("=" not in o for o in overrides):
-                overrides = resolve_bare(cfg_lib.load(args.config), overrides)
-            cfg = cfg_lib.load(args.config, overrides)
+        cfg = load_config(args, overrides, pathlib.Path(args.workdir or ".") / f"seed{seeds[0]}")
         cfgs = group_configs(cfg, seeds)
         for c in cfgs:
             cfg_lib.validate(c)
@@ -196,18 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             raise RunError("--resume: name the run with --workdir")
         if args.step is not None and not args.resume:
             raise RunError("--step: only with --resume")
-        if args.resume and args.config is None:
-            # The run's own config, with this command's overrides (e.g. more generations).
-            saved = pathlib.Path(args.workdir) / "config.json"
-            if not saved.is_file():
-                raise RunError(f"--resume: {args.workdir} holds no run to resume (no config.json)")
-            base = cfg_lib.read_run_config(saved)
-            cfg = cfg_lib.apply_overrides(base, resolve_bare(base, overrides))
-            cfg.lock()
-        else:
-            if any("=" not in o for o in overrides):
-                overrides = resolve_bare(cfg_lib.load(args.config), overrides)
-            cfg = cfg_lib.load(args.config, overrides)
+        cfg = load_config(args, overrides, pathlib.Path(args.workdir))
         cfg_lib.validate(cfg)
         if args.workdir:
             workdir = pathlib.Path(args.workdir)

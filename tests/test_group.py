@@ -137,7 +137,7 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
     """After the first two generations, a group's generation compiles only evaluator batch widths it
     reaches for the first time; and every generation of every run, its metrics row (execution figures
     aside) and its run state, is what the same run computes alone (:class:`kx.evolve.run.Trainer`)."""
-    from tests.test_run_loop import _compiles_during
+    from tests.test_run_loop import _compiles_during, assert_nothing_compiles_twice
 
     # test_run_loop.py's shapes for NEAT: the runs alone reuse what its recompile test compiled
     cfgs = [_cfg("neat", s, "generations=5", "trials=2", "validation_trials=4", "sim.max_iterations=60")
@@ -151,13 +151,7 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
         rows.append(got)
     _, probe = _compiles_during(lambda: jax.jit(lambda x: x * 3.0 - 1.0)(np.arange(3.0)))
     assert probe, "the log of compilations caught nothing: the test would pass vacuously"
-    seen = set(per_generation[0]) | set(per_generation[1])
-    for g, compiles in enumerate(per_generation[2:], 1):
-        for c in compiles:
-            assert c not in seen, f"generation {g} compiled {c[0]} again with the same shapes"
-            seen.add(c)
-    later = [c for compiles in per_generation[3:] for c in compiles]
-    assert all("_advance" in name or "_compact" in name for name, _ in later), later
+    assert_nothing_compiles_twice(per_generation, first=2)  # init and generation 0, as one run's
     strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
     for r, c in enumerate(cfgs):
         trainer = run_lib.Trainer(c)

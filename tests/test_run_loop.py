@@ -178,12 +178,19 @@ def test_no_method_recompiles_the_evaluator_or_its_step_across_generations(toy, 
     # generation 0 (init and the first step) may compile one function twice with the same argument shapes:
     # a jitted helper with static arguments (jax.random.normal's shape, in the toy's eager init and ask)
     # compiles once per static value, which the log does not show; after it, nothing compiles again
-    seen = set(per_generation[0])
-    for g, compiles in enumerate(per_generation[1:], 1):
+    assert_nothing_compiles_twice(per_generation, first=1)
+
+
+def assert_nothing_compiles_twice(per_generation, first: int):
+    """``per_generation[i]``: the programs compiled during step i. After the ``first`` steps (which may
+    compile one function twice, see above), no step compiles a program with shapes compiled before, and
+    from step ``first + 1`` on only the evaluator's rungs compile (a batch width reached for the first time)."""
+    seen = set().union(*per_generation[:first])
+    for g, compiles in enumerate(per_generation[first:], first):
         for c in compiles:
-            assert c not in seen, f"generation {g} compiled {c[0]} again with the same shapes"
+            assert c not in seen, f"step {g} compiled {c[0]} again with the same shapes"
             seen.add(c)
-    later = [c for compiles in per_generation[2:] for c in compiles]
+    later = [c for compiles in per_generation[first + 1:] for c in compiles]
     assert all("_advance" in name or "_compact" in name for name, _ in later), later
 
 
