@@ -357,6 +357,14 @@ def test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason(capsys, 
     mgr.wait_until_finished()
     want = f"checkpoint format 1; this kx reads format {ckpt.FORMAT} (written by an older kx)"
     assert want in _err(capsys, resume(old))
+    # a checkpoint whose run key is not its seed's (its config says seed 0, its state carries seed 7's key)
+    rekeyed = _copy(src, tmp_path / "rekeyed")
+    step, state, meta = trainer.restore(rekeyed)
+    shutil.rmtree(rekeyed / "checkpoints" / str(step))
+    ckpt.save(ckpt.manager(rekeyed / "checkpoints", 3), step, state.replace(key=streams.run_key(7)),
+              {k: v for k, v in meta.items() if k != "format"})
+    err = _err(capsys, resume(rekeyed))
+    assert f"checkpoint {step}" in err and "is damaged: its run key is [0, 7], seed 0's is [0, 0]" in err
     # a checkpoint of another method, read with this config's method
     other_method = "cma_es" if method == "neat" else "neat"
     foreign = run_lib.Trainer(cfg_lib.load(REPO / METHODS[other_method][1], [
