@@ -25,6 +25,7 @@ bench: $(STAMP)  ## every benchmark (neat_xor also installs the optional neat-py
 	$(PY) -m kx.bench neat_xor
 	$(PY) -m kx.bench neat_generation
 	$(PY) -m kx.bench generation
+	$(PY) -m kx.bench runs
 	$(PY) -m kx.bench learning
 
 calibrate: $(STAMP)
