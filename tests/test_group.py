@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 
 import jax
 import numpy as np
@@ -120,6 +121,20 @@ def test_a_group_refuses_configs_that_differ_beyond_the_seed_before_any_compute(
     with pytest.raises(run_lib.RunError, match="exists and is not empty"):
         group_lib.train_group([a, _cfg("neat", 1)], [tmp_path / "a", tmp_path / "b"], log=_quiet)
     assert not (tmp_path / "a").exists()
+
+
+@pytest.mark.parametrize("shape", [(10, 50, 30), (3, 50, 30), (16, 150, 30)])
+def test_a_groups_means_over_trials_are_those_of_each_run_alone(shape):
+    """Bit for bit what the run loop computes on one run's [P, T] (a mean over the last axis of the whole
+    [R, P, T] differs in the last bit at 50 x 30, CMA-ES's shape: the protocol's CMA-ES runs drifted)."""
+    k = jax.random.split(jax.random.key(sum(shape)), 2)
+    fitness = jax.random.uniform(k[0], shape) * jax.random.uniform(k[1], shape)
+    behaviour = jax.random.uniform(k[1], (3, *shape))
+    stats = types.SimpleNamespace(fitness=fitness, behaviour=behaviour)  # the two fields it reads
+    f, b = group_lib.trial_means(stats)
+    for r in range(shape[0]):
+        np.testing.assert_array_equal(np.asarray(f[r]), np.asarray(fitness[r].mean(axis=1)))
+        np.testing.assert_array_equal(np.asarray(b[r]), np.asarray(behaviour[:, r].mean(axis=2)))
 
 
 @pytest.mark.parametrize("text, seeds", [("0-3", [0, 1, 2, 3]), ("5", [5]), ("0-1,7", [0, 1, 7])])
