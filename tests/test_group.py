@@ -123,6 +123,30 @@ def test_a_group_refuses_configs_that_differ_beyond_the_seed_before_any_compute(
     assert not (tmp_path / "a").exists()
 
 
+def test_a_group_of_ten_builds_substrates_and_scores_novelty_as_its_runs_alone():
+    """Where vmap over 10 runs of 150 rounds differently in the last bit (HyperNEAT's substrate query, the
+    novelty k-NN; identical at the 3 x 12 of the tests above), a group computes each run's alone."""
+    from kx.evolve import streams
+
+    cfgs = [cfg_lib.load(REPO / "configs" / "hyperneat_3v2.py", [f"seed={s}", "objective=hybrid"]) for s in range(10)]
+    group = group_lib.RunGroup.from_configs(cfgs)
+    state = group.init()
+    population, _ = group._ask(jax.vmap(lambda k: streams.learner_ask(k, 0))(state.key), state.learner)
+    tables = group._policy_params(population)
+    fitness = jax.random.uniform(jax.random.key(1), (10, 150))
+    behaviour = jax.random.uniform(jax.random.key(2), (10, 3, 150))
+    score, archive, _ = group._score(fitness, behaviour, state.objective)
+    score, archive, _ = group._score(fitness[::-1], behaviour[::-1], archive)  # with an archive to search
+    alone = []
+    for r, trainer in enumerate(group.trainers):
+        pop = jax.tree.map(lambda a: a[r], population)
+        for x, y in zip(jax.tree.leaves(tables), jax.tree.leaves(trainer.encoding.policy_params(pop)), strict=True):
+            np.testing.assert_array_equal(np.asarray(x[r]), np.asarray(y))
+        s1, a1, _ = trainer.objective.score(fitness[r], behaviour[r], group_lib.run_state(state, r).objective)
+        alone.append(trainer.objective.score(fitness[9 - r], behaviour[9 - r], a1)[0])
+    np.testing.assert_array_equal(np.asarray(score), np.stack([np.asarray(a) for a in alone]))
+
+
 @pytest.mark.parametrize("shape", [(10, 50, 30), (3, 50, 30), (16, 150, 30)])
 def test_a_groups_means_over_trials_are_those_of_each_run_alone(shape):
     """Bit for bit what the run loop computes on one run's [P, T] (a mean over the last axis of the whole

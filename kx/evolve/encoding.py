@@ -62,9 +62,10 @@ class Encoding(abc.ABC):
     metric_fields: ClassVar[tuple[str, ...]] = ()
     #: the metric drawn in progress.png's lower panel (None: no panel)
     plot_field: ClassVar[str | None] = None
-    #: whether ``jax.vmap`` of ``ask`` and ``tell`` over runs computes, bit for bit, what each run computes
-    #: alone; if not, a batched group (kx.evolve.group) maps them over its runs with ``jax.lax.map``
-    vmap_exact: ClassVar[bool] = True
+    #: which of ``ask``, ``tell`` and ``policy_params`` ``jax.vmap`` over runs computes bit for bit as each
+    #: run alone (measured, at the sizes of the shipped configs and groups of up to 16); a batched group
+    #: (kx.evolve.group) calls the others run by run
+    vmap_exact: ClassVar[frozenset] = frozenset({"ask", "tell", "policy_params"})
 
     def __init__(self, cfg: ml_collections.ConfigDict, sim: KeepAwayConfig, sim_params: KeepAwayParams):
         self.cfg, self.sim, self.sim_params = cfg, sim, sim_params

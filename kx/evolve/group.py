@@ -66,12 +66,12 @@ def check_group(cfgs: Sequence[ml_collections.ConfigDict]) -> None:
 
 
 def over_runs(fn: Callable, vectorised: bool = True) -> Callable:
-    """``fn`` mapped over a leading run axis of every argument: ``jax.vmap``; or, for a method whose
-    batched arithmetic is not bit for bit its unbatched one (``Encoding.vmap_exact`` false), ``fn``'s own
-    program called on each run in turn, its outputs stacked. CMA-ES is such a method: vmapped, and even
-    under ``jax.lax.map`` (which compiles the loop's body into a program of its own), evosax's covariance
-    update rounds differently in the last bit from one run's alone (measured: the step size after the
-    second generation, 0.93809110 alone, 0.93809104 batched), and a run's trajectory then drifts."""
+    """``fn`` mapped over a leading run axis of every argument: ``jax.vmap``; or, where batched arithmetic
+    is not bit for bit the unbatched one (``Encoding.vmap_exact``, ``Objective.vmap_exact``), ``fn``'s own
+    program called on each run in turn, its outputs stacked. Measured: CMA-ES's ask and tell (vmapped, and
+    even under ``jax.lax.map``, evosax's covariance update rounds differently in the last bit: the step
+    size after the second generation 0.93809110 alone, 0.93809104 batched), HyperNEAT's substrate query
+    (10 runs x 150) and the novelty hybrid's k-NN (10 x 50, 16 x 150); a run's trajectory then drifts."""
     if vectorised:
         return jax.vmap(fn)
 
@@ -124,9 +124,10 @@ class RunGroup:
         self.validation_starts = _concat_states([t.validation_starts for t in self.trainers])
         self.validation_keys = jnp.stack([t.validation_eval_key for t in self.trainers])
         enc = self.encoding
-        self._ask, self._tell = over_runs(enc.ask, enc.vmap_exact), over_runs(enc.tell, enc.vmap_exact)
-        self._score = jax.vmap(self.objective.score)
-        self._policy_params = jax.vmap(enc.policy_params)
+        self._ask = over_runs(enc.ask, "ask" in enc.vmap_exact)
+        self._tell = over_runs(enc.tell, "tell" in enc.vmap_exact)
+        self._score = over_runs(self.objective.score, self.objective.vmap_exact)
+        self._policy_params = over_runs(enc.policy_params, "policy_params" in enc.vmap_exact)
         self._individual = jax.vmap(enc.individual)
 
     @classmethod

@@ -118,7 +118,7 @@ class CMAESEncoding(Encoding):
     name = "cma_es"
     # vmapped, evosax's covariance update (matrix products, eigendecomposition) rounds differently in
     # the last bit from one run's: a batched group calls ask and tell run by run (kx.evolve.group.over_runs)
-    vmap_exact = False
+    vmap_exact = frozenset({"policy_params"})
     section = "cma_es"
     layouts = ("fixed", "full")
     metric_fields = ("sigma", "mean_norm")
