@@ -206,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             raise RunError("--resume: name the run with --workdir")
         if args.step is not None and not args.resume:
             raise RunError("--step: only with --resume")
-        cfg = load_config(args, overrides, pathlib.Path(args.workdir))
+        cfg = load_config(args, overrides, pathlib.Path(args.workdir or "."))
         cfg_lib.validate(cfg)
         if args.workdir:
             workdir = pathlib.Path(args.workdir)
