@@ -260,6 +260,10 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
         capsys, w + ["--config.neat.max_add_links=151"])
     assert "sim.max_iterations" in _err(capsys, w + ["--config.sim.max_iterations=0"])
     assert "--config: no config file" in _err(capsys, w + ["--config", "configs/nope.py"])
+    # with no --workdir (the default run directory), as `make run` calls it, and as a group of seeds
+    assert "population_size: allowed an integer" in _err(capsys, ["--config.population_size=1"])
+    assert "population_size: allowed an integer" in _err(capsys, ["--seeds", "0-1", "--config.population_size=1"])
+    assert "--seeds: allowed" in _err(capsys, w + ["--seeds", "0-x"])
     assert "--step: only with --resume" in _err(capsys, w + ["--step", "3"])
     cma = ["--config", "configs/cma_es_3v2.py"]
     assert "cma_es.sigma_init: allowed a number in (0, 10000]" in _err(
