@@ -123,6 +123,7 @@ def test_a_group_refuses_configs_that_differ_beyond_the_seed_before_any_compute(
     assert not (tmp_path / "a").exists()
 
 
+@pytest.mark.slow  # ~35-55 s: 10 runs of 150 CPPNs; the default suite checks the trial means at their size
 def test_a_group_of_ten_builds_substrates_and_scores_novelty_as_its_runs_alone():
     """Where vmap over 10 runs of 150 rounds differently in the last bit (HyperNEAT's substrate query, the
     novelty k-NN; identical at the 3 x 12 of the tests above), a group computes each run's alone."""
