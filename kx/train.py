@@ -94,6 +94,16 @@ def resolve_bare(cfg, overrides: list[str]) -> list[str]:
     return out
 
 
+def workdir_of(args, tag: str) -> pathlib.Path:
+    """``--workdir``, or by default ``runs/<config name>-<tag>-<time>``."""
+    if args.workdir:
+        return pathlib.Path(args.workdir)
+    from kx.evolve import config as cfg_lib
+
+    name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
+    return pathlib.Path("runs") / f"{name}-{tag}-{datetime.datetime.now().strftime('%Y%m%d-%H%M%S')}"
+
+
 def load_config(args, overrides: list[str], run_dir: pathlib.Path):
     """The config of the command: on ``--resume`` with no ``--config``, the run's own (``run_dir``'s
     config.json) with this command's overrides (e.g. more generations); else ``--config`` (default
@@ -165,12 +175,7 @@ def main_group(args, overrides) -> int:
         for c in cfgs:
             cfg_lib.validate(c)
         group_lib.check_group(cfgs)
-        if args.workdir:
-            workdir = pathlib.Path(args.workdir)
-        else:
-            name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
-            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-            workdir = pathlib.Path("runs") / f"{name}-seeds{seeds[0]}-{seeds[-1]}-{stamp}"
+        workdir = workdir_of(args, f"seeds{seeds[0]}-{seeds[-1]}")
         dirs = [workdir / f"seed{s}" for s in seeds]
         for d in dirs:
             if d.is_dir():
@@ -208,12 +213,7 @@ def main(argv: list[str] | None = None) -> int:
             raise RunError("--step: only with --resume")
         cfg = load_config(args, overrides, pathlib.Path(args.workdir or "."))
         cfg_lib.validate(cfg)
-        if args.workdir:
-            workdir = pathlib.Path(args.workdir)
-        else:
-            name = pathlib.Path(args.config).stem if args.config else cfg_lib.DEFAULT_CONFIG.stem
-            stamp = datetime.datetime.now().strftime("%Y%m%d-%H%M%S")
-            workdir = pathlib.Path("runs") / f"{name}-s{cfg.seed}-{stamp}"
+        workdir = workdir_of(args, f"s{cfg.seed}")
         if workdir.is_dir():  # one that another process is writing (run.lock): refused now, before JAX computes
             run_lib.RunLock(workdir).check()
         if not args.overwrite:  # refuse an existing run directory now, before JAX starts
