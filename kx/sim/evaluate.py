@@ -204,13 +204,14 @@ def _advance_and_compact(state, lane_params, noise_word, lane_id, keys, group_si
     then on each device the ``width // n_dev`` of its lanes that come first when live lanes are put
     before finished ones (lanes never move between devices). Each device stops on its own count (a
     global one would need a collective every iteration, which measured slower). Returns the compacted
-    lanes, the counters of every lane before the compaction with its lane id (finished lanes' values
-    are final), and per device the iterations run and the live lanes ``[n_dev, 2]``."""
+    lanes, the counters of every lane before the compaction and its lane id, stacked ``[6, width]``
+    (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the iterations
+    run and the live lanes ``[n_dev, 2]``."""
 
     def local(state, lane_params, noise_word, lane_id, keys, group_size, params, table):
         state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
                                          jnp.int32(width // n_dev), table, policy=policy, config=config)
-        record = ({f: getattr(state, f) for f in COUNTERS}, lane_id)
+        record = jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id])  # [6, lanes]: one transfer
         lanes = (state, lane_params, noise_word, lane_id)
         if width:
             order = jnp.argsort(state.done, stable=True)[: width // n_dev]
@@ -225,17 +226,65 @@ def _advance_and_compact(state, lane_params, noise_word, lane_id, keys, group_si
     lanes = (state, lane_params, noise_word, lane_id)
     in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes_spec, lanes_spec, rep, rep,
                 jax.tree.map(lambda _: rep, params), jax.tree.map(lambda _: rep, table))
-    record_specs = ({f: lanes_spec for f in COUNTERS}, lanes_spec)
+    record_specs = jax.sharding.PartitionSpec(None, "lanes")
     out_specs = (_lane_specs(lanes), record_specs, jax.sharding.PartitionSpec("lanes", None))
     return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
         state, lane_params, noise_word, lane_id, keys, group_size, params, table)
 
 
-@functools.partial(jax.jit, static_argnames=("config",))
-def _finish(results: dict, params: KeepAwayParams, *, config):
+@functools.partial(jax.jit, static_argnames=("shared", "n_groups", "n_pol", "n_trials", "n_dev", "width"))
+def _prepare(starts, policy_params, keys, table, *, shared, n_groups, n_pol, n_trials, n_dev, width):
+    """The first rung's lanes, in one compiled call (eagerly, the noise words and the gathers cost a
+    fifth of an evaluation of 4500 short episodes): lane ``l`` plays run ``l // group_size``'s policy
+    ``l // T`` on that run's trial ``l % T`` with the trial's kick-noise word; past ``n`` (padding to
+    a multiple of the devices) lane ``l`` repeats lane ``l mod n``, the same episode with the same
+    keys, so recording it twice writes the same values. The lanes are split over ``n_dev`` devices,
+    a shared ``table`` replicated on each."""
+    group_size = n_pol * n_trials
+    n = n_groups * group_size
+    lane_id = jnp.arange(width, dtype=jnp.int32) % n
+    trial_id = (lane_id // group_size) * n_trials + lane_id % n_trials
+    words = jax.vmap(lambda k: env.noise_words(stream_keys(k)[0], jnp.arange(n_trials)))(keys).reshape(-1)
+    noise_word = jnp.take(words, trial_id)
+    state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
+    if shared:  # lanes carry their row of the table; the table stays whole
+        lane_params = lane_id // n_trials
+    else:
+        lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
+                                   policy_params)
+    lanes = (state, lane_params, noise_word, lane_id)
+    if n_dev > 1:  # split the lanes once; in any other layout every sharded call would reshard them
+        mesh = _mesh(n_dev)
+        lanes = jax.lax.with_sharding_constraint(
+            lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
+        table = jax.lax.with_sharding_constraint(
+            table, jax.tree.map(lambda _: jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()), table))
+    return lanes, table
+
+
+def _onto_mesh(tree, n_dev: int):
+    """``tree`` with every leaf committed to devices other than the first ``n_dev`` (a restored
+    checkpoint's, say) copied onto them, replicated, so that one compiled call can take them all."""
+    if n_dev == 1:
+        return tree
+    devices = set(jax.devices()[:n_dev])
+    rep = jax.sharding.NamedSharding(_mesh(n_dev), jax.sharding.PartitionSpec())
+    return jax.tree.map(lambda a: jax.device_put(a, rep) if isinstance(a, jax.Array) and a.committed
+                        and a.sharding.device_set != devices else a, tree)
+
+
+@jax.jit
+def _stacked(records, progress):
+    """Every rung's record ``[6, w]`` side by side and every rung's progress stacked, for one transfer each."""
+    return jnp.concatenate(records, axis=1), jnp.stack(progress)
+
+
+@functools.partial(jax.jit, static_argnames=("config", "shape"))
+def _finish(results: dict, params: KeepAwayParams, *, config, shape):
     # Normalised once, over all episodes, by one program: the floats do not depend on the batch
     # widths or device split the episodes ran in.
-    return env.stats_from_counts(*(results[f] for f in COUNTERS), params, config)
+    stats = env.stats_from_counts(*(results[f] for f in COUNTERS), params, config)
+    return jax.tree.map(lambda a: a.reshape(a.shape[:-1] + shape), stats)
 
 
 def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAwayParams,
@@ -287,55 +336,40 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     n = n_groups * group_size
     n_dev = min(devices or jax.local_device_count(), jax.local_device_count())
     ladder = width_ladder(n, multiple=n_dev)
-    width = ladder[0]
-    # Lanes past n (padding to a multiple of the devices) repeat lane i mod n: the same episode, with
-    # the same keys, so recording it twice writes the same values. Lane l plays run l // group_size's
-    # policy (l // T) on its trial l % T (the state of row (l // group_size) * T + l % T).
-    lane_id = jnp.arange(width, dtype=jnp.int32) % n
-    trial_id = (lane_id // group_size) * n_trials + lane_id % n_trials
-    words = jax.vmap(lambda k: env.noise_words(stream_keys(k)[0], jnp.arange(n_trials)))(keys).reshape(-1)
-    noise_word = jnp.take(words, trial_id)
-    state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
-    if policy.shared:  # lanes carry their row of the table; the table stays whole
-        lane_params, table = lane_id // n_trials, policy_params
-    else:
-        lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1),
-                                   policy_params)
-        table = None
-    if n_dev > 1:  # split the lanes once; in any other layout every sharded call would reshard them
-        mesh = _mesh(n_dev)
-        lanes = (state, lane_params, noise_word, lane_id)
-        state, lane_params, noise_word, lane_id = jax.device_put(
-            lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
-        table = jax.device_put(table, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    starts, policy_params, keys = _onto_mesh((starts, policy_params, keys), n_dev)
+    lanes, table = _prepare(starts, None if policy.shared else policy_params, keys,
+                            policy_params if policy.shared else None, shared=policy.shared, n_groups=n_groups,
+                            n_pol=n_pol, n_trials=n_trials, n_dev=n_dev, width=ladder[0])
+    state, lane_params, noise_word, lane_id = lanes
+    # what every rung reads besides its lanes, on the devices once rather than sent with every rung
+    rung_params, rung_group_size, keys = jax.device_put(
+        (params, np.int32(group_size), keys),
+        jax.sharding.NamedSharding(_mesh(n_dev), jax.sharding.PartitionSpec()) if n_dev > 1 else None)
     # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
-    # (a few integers per lane) once, at the end.
+    # (a few integers per lane) once, at the end, in one transfer.
     chain = rungs(ladder)
-    records = []
+    records, progress = [], []
     for k in range(len(chain)):
         nxt = chain[k + 1] if k + 1 < len(chain) else 0
-        lanes, record, progress = _advance_and_compact(state, lane_params, noise_word, lane_id, keys,
-                                                       np.int32(group_size), params, table, policy=policy,
-                                                       config=config, n_dev=n_dev, width=nxt)
+        lanes, record, ran = _advance_and_compact(state, lane_params, noise_word, lane_id, keys,
+                                                  rung_group_size, rung_params, table, policy=policy,
+                                                  config=config, n_dev=n_dev, width=nxt)
         state, lane_params, noise_word, lane_id = lanes
-        records.append((record, progress))
-    records = jax.device_get(records)
+        records.append(record)
+        progress.append(ran)
+    packed, progress = (np.asarray(a) for a in _stacked(records, progress))
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
-    for (values, ids), _ in records:  # later rungs overwrite the lanes still live at earlier ones
-        for f in COUNTERS:
-            results[f][ids] = values[f]  # padding lanes repeat a lane and write the same values
-    ran = [int(np.asarray(p)[:, 0].max()) for _, p in records]
+    for rec in np.split(packed, np.cumsum(chain)[:-1], axis=1):  # later rungs overwrite lanes still live
+        for i, f in enumerate(COUNTERS):
+            results[f][rec[-1]] = rec[i]  # padding lanes repeat a lane and write the same values
     if counters is not None:
+        ran = progress[:, :, 0]
         counters.chunks += len(chain)
-        counters.executed_steps += sum(int(np.asarray(p)[:, 0].sum()) * (w // n_dev)
-                                       for (_, p), w in zip(records, chain))
-        widths = tuple(w for i, w in enumerate(chain) if i == 0 or ran[i] > 0)
-    results = _finish(results, params, config=config)
-    if counters is not None:
-        counters.live_steps += int(jnp.sum(results.iterations))
-        counters.widths = widths
+        counters.executed_steps += int(sum(int(r.sum()) * (w // n_dev) for r, w in zip(ran, chain)))
+        counters.widths = tuple(w for i, w in enumerate(chain) if i == 0 or ran[i].max() > 0)
+        counters.live_steps += int(results["t"].sum(dtype=np.int64))
     shape = (n_groups, n_pol, n_trials) if grouped else (n_pol, n_trials)
-    return jax.tree.map(lambda a: a.reshape(a.shape[:-1] + shape), results)
+    return _finish(results, params, config=config, shape=shape)
 
 
 def rollout(policy: Policy, policy_params: Any, start: State, params: KeepAwayParams,
