@@ -20,8 +20,12 @@ SCRIPT = textwrap.dedent("""
     pol = policies.heuristic(cfg)
     one = ev.evaluate(pol, None, starts, params, cfg, devices=1, key=jax.random.key(1))
     two = ev.evaluate(pol, None, starts, params, cfg, devices=2, key=jax.random.key(1))
+    # inputs committed to single devices (as a restored checkpoint's arrays are) go onto both
+    three = ev.evaluate(pol, None, jax.device_put(starts, jax.devices()[1]), params, cfg, devices=2,
+                        key=jax.device_put(jax.random.key(1), jax.devices()[0]))
     for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
         np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
+        np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(three, f)), err_msg=f)
     print("ok", float(one.fitness.mean()))
 """)
 
