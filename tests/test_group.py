@@ -204,6 +204,39 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(monkeypatch):
+    """On a CPU a group plays its runs' episodes in calls whose substrate tables fit CPU_TABLE_BYTES (one
+    run a call at the paper's sizes); forced here at test sizes, every row and run state is still each
+    run's alone."""
+    cfgs = [_cfg("hyperneat", s, "generations=2") for s in SEEDS]
+    group = group_lib.RunGroup.from_configs(cfgs)
+    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 1)
+    state = group.init()
+    population, _ = group._ask(jax.vmap(lambda k: group_lib.streams.learner_ask(k, 0))(state.key), state.learner)
+    assert group.runs_per_call(group._policy_params(population)) == 1
+    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 2**40)
+    assert group.runs_per_call(group._policy_params(population)) == len(SEEDS)
+    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 1)
+    calls = []
+    evaluate = group_lib.ev.evaluate
+    monkeypatch.setattr(group_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
+    rows = []
+    for _ in range(2):
+        state, got = group.step(state)
+        rows.append(got)
+    assert calls == [(1,)] * 12  # per generation: the 3 runs' episodes, one run a call, then their validation
+    strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
+    for r, c in enumerate(cfgs):
+        trainer = run_lib.Trainer(c)
+        alone = trainer.init()
+        for g in range(2):
+            result = trainer.step(alone)
+            alone = result.state
+            assert strip(result.row) == strip(rows[g][r]), (c.seed, g)
+        for x, y in zip(jax.tree.leaves(alone), jax.tree.leaves(group_lib.run_state(state, r)), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 @pytest.mark.slow
 def test_a_batched_group_killed_with_sigkill_resumes_bit_for_bit(tmp_path):
     """``kx.train --seeds`` killed once some run has checkpoint 2, resumed as a group: every run ends as

@@ -45,6 +45,14 @@ from kx.sim import evaluate as ev
 #: the config fields in which the runs of a group may differ
 VARYING = ("seed", "transfer.source")
 
+#: On a CPU, a group plays its runs' episodes in evaluator calls whose shared policy tables together
+#: hold at most this many bytes (at least one run a call; any number on other platforms). HyperNEAT's
+#: substrates are 96 MB a run in 3v2 (150 x 400 x 400 float32), read at random: measured on real
+#: populations of 8 runs at generation 50 of the protocol's 4v3 cell (2026-12-02, 2 cores), 8 runs a
+#: call 128 s, 4 a call 117 s, one a call 84 s for the same 26M live steps; at generation 10 of 3v2
+#: (short episodes) one call and eight took the same 4.5 s. The budget is this machine's L3 cache.
+CPU_TABLE_BYTES = 32 * 2**20
+
 
 def check_group(cfgs: Sequence[ml_collections.ConfigDict]) -> None:
     """The configs of one group: at least one, equal in every field but :data:`VARYING`, distinct seeds
@@ -142,13 +150,33 @@ class RunGroup:
         """Every run's state before generation 0 (fresh, or seeded from its transfer source), stacked."""
         return stack_states([t.init() for t in self.trainers])
 
+    def runs_per_call(self, params) -> int:
+        """How many runs' episodes one evaluator call plays, for policy parameters ``params`` (``[R, P,
+        ...]``): all of them, but on a CPU only as many as keep a shared table within
+        :data:`CPU_TABLE_BYTES`."""
+        n = len(self)
+        if not self.encoding.policy.shared or jax.devices()[0].platform != "cpu":
+            return n
+        per_run = sum(a.nbytes for a in jax.tree.leaves(params)) // n
+        return int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
+
     def evaluate(self, population, starts, keys, counters=None):
         """Run ``r``'s individuals of ``population`` (``[R, P, ...]``) on its start states ``starts[..., r*T:
-        (r+1)*T]`` with its key ``keys[r]``, every run in one evaluator call (:class:`EpisodeStats` [R, P, T])."""
+        (r+1)*T]`` with its key ``keys[r]`` (:class:`EpisodeStats` [R, P, T]): every run in one evaluator
+        call, or in calls of :meth:`runs_per_call` runs (each run's episodes are the same either way)."""
         params = self._policy_params(population)
-        params = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), params)  # [R, P, ...] -> [R*P, ...]
-        return ev.evaluate(self.encoding.policy, params, starts, self.exp.sim_params, self.exp.sim, key=keys,
-                           counters=counters)
+        n, c = len(self), self.runs_per_call(params)
+        n_trials = starts.holder.shape[-1] // n
+        flat = lambda p: jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), p)  # noqa: E731 [R, P] -> [R*P]
+        parts = [ev.evaluate(self.encoding.policy, flat(jax.tree.map(lambda a: a[i:i + c], params)),
+                             jax.tree.map(lambda a: a[..., i * n_trials:(i + c) * n_trials], starts),
+                             self.exp.sim_params, self.exp.sim, key=keys[i:i + c], counters=counters)
+                 for i in range(0, n, c)]
+        if len(parts) == 1:
+            return parts[0]
+        run_axis = lambda f: 1 if f == "behaviour" else 0  # noqa: E731 (behaviour is [3, R, P, T])
+        return type(parts[0])(**{f: jnp.concatenate([getattr(p, f) for p in parts], axis=run_axis(f))
+                                 for f in parts[0].__dataclass_fields__})
 
     def validate(self, champions) -> np.ndarray:
         """Each run's genotype of ``champions`` (``[R, ...]``) on that run's validation states: ``[R]`` mean
