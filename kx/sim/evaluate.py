@@ -233,13 +233,13 @@ def _advance_and_compact(state, lane_params, noise_word, lane_id, keys, group_si
 
 
 @functools.partial(jax.jit, static_argnames=("shared", "n_groups", "n_pol", "n_trials", "n_dev", "width"))
-def _prepare(starts, policy_params, keys, table, *, shared, n_groups, n_pol, n_trials, n_dev, width):
+def _prepare(starts, policy_params, keys, *, shared, n_groups, n_pol, n_trials, n_dev, width):
     """The first rung's lanes, in one compiled call (eagerly, the noise words and the gathers cost a
     fifth of an evaluation of 4500 short episodes): lane ``l`` plays run ``l // group_size``'s policy
     ``l // T`` on that run's trial ``l % T`` with the trial's kick-noise word; past ``n`` (padding to
     a multiple of the devices) lane ``l`` repeats lane ``l mod n``, the same episode with the same
-    keys, so recording it twice writes the same values. The lanes are split over ``n_dev`` devices,
-    a shared ``table`` replicated on each."""
+    keys, so recording it twice writes the same values. The lanes are split over ``n_dev`` devices.
+    (A shared table does not pass through here: a compiled call would copy it, 96 MB for HyperNEAT.)"""
     group_size = n_pol * n_trials
     n = n_groups * group_size
     lane_id = jnp.arange(width, dtype=jnp.int32) % n
@@ -257,9 +257,7 @@ def _prepare(starts, policy_params, keys, table, *, shared, n_groups, n_pol, n_t
         mesh = _mesh(n_dev)
         lanes = jax.lax.with_sharding_constraint(
             lanes, jax.tree.map(lambda sp: jax.sharding.NamedSharding(mesh, sp), _lane_specs(lanes)))
-        table = jax.lax.with_sharding_constraint(
-            table, jax.tree.map(lambda _: jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()), table))
-    return lanes, table
+    return lanes
 
 
 def _onto_mesh(tree, n_dev: int):
@@ -337,13 +335,13 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     n_dev = min(devices or jax.local_device_count(), jax.local_device_count())
     ladder = width_ladder(n, multiple=n_dev)
     starts, policy_params, keys = _onto_mesh((starts, policy_params, keys), n_dev)
-    lanes, table = _prepare(starts, None if policy.shared else policy_params, keys,
-                            policy_params if policy.shared else None, shared=policy.shared, n_groups=n_groups,
-                            n_pol=n_pol, n_trials=n_trials, n_dev=n_dev, width=ladder[0])
-    state, lane_params, noise_word, lane_id = lanes
-    # what every rung reads besides its lanes, on the devices once rather than sent with every rung
-    rung_params, rung_group_size, keys = jax.device_put(
-        (params, np.int32(group_size), keys),
+    state, lane_params, noise_word, lane_id = _prepare(
+        starts, None if policy.shared else policy_params, keys, shared=policy.shared, n_groups=n_groups, n_pol=n_pol,
+        n_trials=n_trials, n_dev=n_dev, width=ladder[0])
+    # what every rung reads besides its lanes (a shared table whole, replicated), on the devices once
+    # rather than sent with every rung
+    table, rung_params, rung_group_size, keys = jax.device_put(
+        (policy_params if policy.shared else None, params, np.int32(group_size), keys),
         jax.sharding.NamedSharding(_mesh(n_dev), jax.sharding.PartitionSpec()) if n_dev > 1 else None)
     # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
     # (a few integers per lane) once, at the end, in one transfer.
