@@ -231,6 +231,7 @@ def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
     assert not (tmp_path / "a").exists() and not (tmp_path / "s").exists()
 
 
+@pytest.mark.slow  # ~20 s; the sweep shares the protocol's run and report code (the tiny protocol test)
 def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
     sw = sweep.Sweep(config="configs/neat_3v2.py", grid=sweep.parse_grid(["neat.add_node_prob=0.03,0.2",
                                                                           "neat.add_link_prob=0.05,0.3"]),
