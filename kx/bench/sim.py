@@ -2,10 +2,13 @@
 neural policy on 4500 episodes of 3v2) and of the step alone, against the plain-Python reference on the
 same rules.
 
-One evaluation of 4500 short episodes is about 75 ms of work, too little to time once on a shared
+One evaluation of 4500 short episodes is about 50 ms of work, too little to time once on a shared
 machine (the same code measured 4.1M and 6.4M live-steps/s minutes apart). Each figure is therefore
 the median of ``--repeats`` samples, each sample repeating the work for at least ``--sample-seconds``,
-with the spread (lowest and highest sample) beside it; the reference is sampled the same way."""
+with the spread (lowest and highest sample) beside it. The reference is sampled the same way, its
+samples taken in turn with the evaluator's (one of each, then the next pair): on this shared machine
+its median moved from 7,900 to 11,800 steps/s between runs minutes apart, and a ratio of two figures
+taken minutes apart would carry that drift."""
 
 from __future__ import annotations
 
@@ -37,7 +40,19 @@ def _summary(samples) -> tuple[float, float, float]:
     return float(np.median(rates)), min(rates), max(rates)
 
 
-def _timed_eval(policy, policy_params, starts, params, config, repeats: int, seconds: float):
+def _interleaved(works, repeats: int, seconds) -> list[list[tuple[float, int, int]]]:
+    """:func:`_samples` of several works taken in turn (one sample of each, ``repeats`` times), so that
+    the machine's drift falls on all of them alike: ``seconds[i]`` per sample of ``works[i]``."""
+    out = [[] for _ in works]
+    for _ in range(repeats):
+        for i, work in enumerate(works):
+            out[i] += _samples(work, 1, seconds[i])
+    return out
+
+
+def _eval_work(policy, policy_params, starts, params, config):
+    """The evaluator's work (compiled here) for :func:`_samples`, the counters and the statistics of
+    its first evaluation."""
     import jax
 
     from kx.sim import evaluate as ev
@@ -51,11 +66,11 @@ def _timed_eval(policy, policy_params, starts, params, config, repeats: int, sec
         jax.block_until_ready(ev.evaluate(policy, policy_params, starts, params, config, counters=c, key=key).fitness)
         return c.live_steps, c.executed_steps
 
-    return _samples(work, repeats, seconds), first, stats
+    return work, first, stats
 
 
-def _reference_samples(config, params, repeats: int, seconds: float, seed: int = 0):
-    """Samples (:func:`_samples`) of the reference's steps, on episodes from the same reset, holding
+def _reference_work(config, params, seed: int = 0):
+    """The reference's work for :func:`_samples`: the reference's steps, on episodes from the same reset, holding
     unless a taker is within 2 king moves and then passing to a random teammate (plain Python
     decisions), with the kick noise of ``params`` drawn per iteration like the evaluator's."""
     import jax
@@ -83,7 +98,7 @@ def _reference_samples(config, params, repeats: int, seconds: float, seed: int =
             steps += 1
         return steps, steps
 
-    return _samples(work, repeats, seconds)
+    return work
 
 
 def _fmt(summary) -> str:
@@ -105,8 +120,10 @@ def run(args) -> None:
 
     reps, sec = args.repeats, args.sample_seconds
     print(f"each figure: the median of {reps} samples of at least {sec} s of work each", flush=True)
-    samples, c, stats = _timed_eval(policies.heuristic(config), None, starts, params, config, reps, sec)
-    heur = _summary(samples)
+    work, c, stats = _eval_work(policies.heuristic(config), None, starts, params, config)
+    samples, ref_samples = _interleaved([work, _reference_work(config, params, args.seed)], reps,
+                                        [sec, args.reference_seconds / reps])
+    heur, ref_rate = _summary(samples), _summary(ref_samples)
     print(f"heuristic: {_fmt(heur)} live episode-steps; one evaluation: {c.live_steps} live steps, executed "
           f"{c.executed_steps} lane-steps ({c.live_steps / c.executed_steps:.2f} live) in {c.chunks} calls; widths "
           f"{list(c.widths)}; {len(samples) and samples[0][1] // c.live_steps} evaluations per sample; mean fitness "
@@ -115,8 +132,8 @@ def run(args) -> None:
     n_pol = 150
     trials = jax.tree.map(lambda a: a[..., : args.episodes // n_pol], starts)
     mlp = policies.mlp_init(jax.random.key(args.seed + 1), n_pol, config)
-    samples2, c2, stats2 = _timed_eval(policies.mlp_policy(config), mlp, trials, params, config, reps, sec)
-    nn_rate = _summary(samples2)
+    work2, c2, stats2 = _eval_work(policies.mlp_policy(config), mlp, trials, params, config)
+    nn_rate = _summary(_samples(work2, reps, sec))
     print(f"mlp 13-8-3 ({n_pol} networks x {args.episodes // n_pol} trials): {_fmt(nn_rate)} live episode-steps; "
           f"executed {c2.executed_steps} ({c2.live_steps / max(c2.executed_steps, 1):.2f} live); mean fitness "
           f"{float(stats2.fitness.mean()):.4f}", flush=True)
@@ -139,8 +156,8 @@ def run(args) -> None:
     print(f"the step alone (heuristic, {n_lanes} lanes in lockstep for 400 iterations, finished lanes included): "
           f"{_fmt(lock_rate)} lane-steps", flush=True)
 
-    ref_rate = _summary(_reference_samples(config, params, reps, args.reference_seconds / reps, args.seed))
-    print(f"reference (plain Python, one episode at a time): {_fmt(ref_rate)} steps")
+    print(f"reference (plain Python, one episode at a time; sampled in turn with the heuristic's evaluator): "
+          f"{_fmt(ref_rate)} steps")
     print(f"mlp: {nn_rate[0]:.0f} live-steps/s (ratio {nn_rate[0] / ref_rate[0]:.1f} vs reference)")
     print(f"step alone: {lock_rate[0]:.0f} lane-steps/s (ratio {lock_rate[0] / ref_rate[0]:.1f} vs reference)")
     print(f"sim: {heur[0]:.0f} live-steps/s (ratio {heur[0] / ref_rate[0]:.1f} vs reference)")
