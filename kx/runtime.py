@@ -18,10 +18,7 @@ def setup(host_devices: int | None = None) -> None:
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
         n = host_devices or os.cpu_count() or 1
-        flags = f"{flags} --xla_force_host_platform_device_count={n}".strip()
-    if "xla_cpu_prefer_vector_width" not in flags:
-        flags = f"{flags} --xla_cpu_prefer_vector_width=512"
-    os.environ["XLA_FLAGS"] = flags
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={n}".strip()
     import jax
 
     cache = os.environ.get("KX_CACHE_DIR", str(pathlib.Path.home() / ".cache" / "kx" / "jax"))
