@@ -2,7 +2,7 @@
 neural policy on 4500 episodes of 3v2) and of the step alone, against the plain-Python reference on the
 same rules.
 
-One evaluation of 4500 short episodes is about 50 ms of work, too little to time once on a shared
+One evaluation of 4500 short episodes is about 30 ms of work, too little to time once on a shared
 machine (the same code measured 4.1M and 6.4M live-steps/s minutes apart). Each figure is therefore
 the median of ``--repeats`` samples, each sample repeating the work for at least ``--sample-seconds``,
 with the spread (lowest and highest sample) beside it. The reference is sampled the same way, its
