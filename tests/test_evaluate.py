@@ -128,3 +128,52 @@ def test_rollout_stacks_states():
     states, actions = ev.rollout(policies.heuristic(CFG), None, start, PARAMS, CFG, n_steps=50)
     assert states.keeper_x.shape == (51, 3) and actions.shape == (50,)
     assert int(states.t[0]) == 0 and jnp.all(jnp.diff(states.t) >= 0)
+
+
+def test_live_first_order_is_the_stable_sort_of_done():
+    """The rungs' compaction order (prefix counts and a scatter) is ``argsort(done, stable=True)``: live
+    lanes first, then finished ones, each in lane order; all live, all finished and mixed batches."""
+    rng = np.random.default_rng(0)
+    for n, p in [(1, 0.5), (7, 0.0), (7, 1.0), (64, 0.3), (257, 0.9), (1000, 0.5)]:
+        done = jnp.asarray(rng.random(n) < p)
+        want = np.argsort(np.asarray(done), kind="stable")
+        for k in {1, n // 2 or 1, n}:
+            np.testing.assert_array_equal(np.asarray(ev._live_first(done, k)), want[:k])
+
+
+def test_lanes_pack_and_unpack_losslessly():
+    """The packed lanes (one int32 array) give back every leaf bit for bit: int32, uint32 (full range),
+    float32 (negative zero, infinities, NaN payloads), booleans and narrower integers; the layout is
+    static and hashable, the same for any lane count."""
+    n = 5
+    bits = np.array([0x7FC00001, 0xFF800000, 0x80000000, 0x3F800000, 0x00000001], np.uint32)
+    tree = {"i": jnp.arange(3 * n, dtype=jnp.int32).reshape(3, n) - 7,
+            "u": jnp.asarray(np.array([0, 1, 2**31, 2**32 - 1, 12345], np.uint32)),
+            "f": jnp.asarray(bits.view(np.float32)).reshape(1, n),
+            "b": jnp.asarray([True, False, True, True, False]),
+            "s": jnp.asarray(np.array([[-128, 127, 0, -1, 5]], np.int8))}
+    rows = ev._pack(tree)
+    layout = ev._Layout.of(tree)
+    assert rows.dtype == jnp.int32 and rows.shape == (3 + 1 + 1 + 1 + 1, n) and layout.n_rows() == 7
+    assert hash(layout) == hash(ev._Layout.of(jax.tree.map(lambda a: a[..., :2], tree)))
+    back = ev._unpack(rows, layout)
+    for k, a in tree.items():
+        assert back[k].dtype == a.dtype and back[k].shape == a.shape
+        np.testing.assert_array_equal(np.asarray(back[k]).view(np.uint8), np.asarray(a).view(np.uint8))
+    with pytest.raises(TypeError, match="starts: .* got float16"):
+        ev._pack({"h": jnp.zeros((2, n), jnp.float16)})
+
+
+def test_rung_scalars_carry_the_params_and_keys_exactly():
+    """The params (a float field by its bits), the group size and the run groups' keys travel to the
+    rungs as one int32 array and come back equal."""
+    params = KeepAwayParams(max_iterations=1234, start_clearance=3, kick_noise_deg=7.3, taker_reaction_delay=0,
+                            tackle_iterations=2)
+    keys = jax.random.split(jax.random.key(11), 3)
+    back, group_size, back_keys = ev._from_scalars(jnp.asarray(ev._scalars(params, 4500, keys)), 3,
+                                                   str(jax.random.key_impl(keys)))
+    assert int(group_size) == 4500
+    for f in ("max_iterations", "start_clearance", "taker_reaction_delay", "tackle_iterations"):
+        assert int(getattr(back, f)) == getattr(params, f)
+    assert np.float32(back.kick_noise_deg) == np.float32(7.3)
+    np.testing.assert_array_equal(np.asarray(jax.random.key_data(back_keys)), np.asarray(jax.random.key_data(keys)))

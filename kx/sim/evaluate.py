@@ -242,7 +242,8 @@ def _rows(a: jax.Array) -> jax.Array:
         return jax.lax.bitcast_convert_type(a, jnp.int32)
     if dt == jnp.bool_ or (jnp.issubdtype(dt, jnp.integer) and dt.itemsize < 4):
         return a.astype(jnp.int32)
-    raise TypeError(f"policy_params: lane arrays must be 32-bit, boolean or narrower integers, got {dt.name}")
+    raise TypeError(f"starts: the evaluator packs the state's arrays into int32 lanes; they must be 32-bit, boolean "
+                    f"or narrower integers, got {dt.name}")
 
 
 def _pack(tree) -> jax.Array:
