@@ -139,8 +139,9 @@ def _lane_specs(tree):
 
 
 # The evaluator's loops are compiled for 512-bit vector registers where the CPU has them (AVX-512; XLA
-# CPU's default prefers 256 bits): the step alone ran 14.0M -> 16.5M lane-steps/s on 2 CPU devices
-# (2026-12-02). Only these loops: set for the whole process, the same option changed evosax's CMA-ES
+# CPU's default prefers 256 bits): the step alone ran 14.0M -> 16.5M lane-steps/s on 2 CPU devices, and
+# 20-21M -> 26-27M once the heuristic was vectorised (2026-12-02, scripts/profile_evaluator.py). Only
+# these loops: set for the whole process, the same option changed evosax's CMA-ES
 # (its covariance update's sums split differently over the wider registers) and so the runs of Table 3,
 # whereas what a step computes is elementwise per lane (the policies' sums run along a short leading
 # axis, the lanes last), which the width of the registers does not change: the protocol's NEAT and
