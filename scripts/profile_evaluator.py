@@ -11,10 +11,11 @@ with nothing to do (every lane finished), with and without its compaction; and t
 lanes in lockstep, as in ``kx.bench sim``) compiled with and without
 :data:`kx.sim.evaluate.LOOP_COMPILER_OPTIONS`, alternated.
 
-Measured 2026-12-02 (2-core CPU, nothing else running): rungs 30.5 ms in all (54.8 ms before the
-heuristic was vectorised and the lanes packed; 8.1 ms at 4500 lanes, 83 ns per lane-step and device,
-2.2 ms for the last rung's ~400 iterations at 64 lanes); a rung with nothing to do 0.28 ms; the step
-alone 20-21M lane-steps/s without the option, 26-27M with it.
+Measured 2026-12-02 (2-core CPU, nothing else running): preparing the lanes 0.62 ms; the rungs 28.8 ms
+in all (54.8 ms before the heuristic was vectorised and the lanes packed; 7.6 ms at 4500 lanes, 77 ns
+per lane-step and device; 2.4 ms for the last rung's 399 iterations at 64 lanes, 252 ns); a rung with
+nothing to do 0.33 ms (0.21 ms without its compaction); the step alone 22-27M lane-steps/s without the
+option, 27-30M with it (three alternated pairs over two runs).
 """
 
 from __future__ import annotations

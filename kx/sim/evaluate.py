@@ -140,7 +140,7 @@ def _lane_specs(tree):
 
 # The evaluator's loops are compiled for 512-bit vector registers where the CPU has them (AVX-512; XLA
 # CPU's default prefers 256 bits): the step alone ran 14.0M -> 16.5M lane-steps/s on 2 CPU devices, and
-# 20-21M -> 26-27M once the heuristic was vectorised (2026-12-02, scripts/profile_evaluator.py). Only
+# 20-27M -> 26-30M once the heuristic was vectorised (2026-12-02, scripts/profile_evaluator.py). Only
 # these loops: set for the whole process, the same option changed evosax's CMA-ES
 # (its covariance update's sums split differently over the wider registers) and so the runs of Table 3,
 # whereas what a step computes is elementwise per lane (the policies' sums run along a short leading
