@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"kx.evaluate: error: {e}", file=sys.stderr)
         return 2
 
-    from kx.evolve import report, streams
+    from kx.evolve import outputs, streams
     from kx.evolve.encoding import stack
     from kx.sim import env
     from kx.sim import evaluate as ev
@@ -129,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {name:9s} on the same trials: mean fitness {b['mean_fitness']:.4f} (sd {b['sd']:.4f})")
     out = run_dir / "eval" / f"{target.sim.name}-{args.trials}-seed{seed}.json"
     out.parent.mkdir(exist_ok=True)
-    report.write_json(out, result)  # atomically: a kill leaves the old figures or the new ones
+    outputs.write_json(out, result)  # atomically: a kill leaves the old figures or the new ones
     print(f"written: {out}")
     return 0
 

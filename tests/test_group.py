@@ -20,7 +20,7 @@ from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
-from kx.evolve import report
+from kx.evolve import outputs
 from kx.evolve import run as run_lib
 from kx.evolve.errors import ConfigError
 
@@ -41,8 +41,8 @@ def _quiet(_):
 
 
 def _rows(run_dir):
-    return [{k: v for k, v in r.items() if k not in report.EXECUTION_FIELDS}
-            for r in report.read_rows(run_dir / "metrics.csv", below=10**9)]
+    return [{k: v for k, v in r.items() if k not in outputs.EXECUTION_FIELDS}
+            for r in outputs.read_rows(run_dir / "metrics.csv", below=10**9)]
 
 
 def _meta(meta):
@@ -192,7 +192,7 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
     _, probe = _compiles_during(lambda: jax.jit(lambda x: x * 3.0 - 1.0)(np.arange(3.0)))
     assert probe, "the log of compilations caught nothing: the test would pass vacuously"
     assert_nothing_compiles_twice(per_generation, first=2)  # init and generation 0, as one run's
-    strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
+    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
     for r, c in enumerate(cfgs):
         trainer = run_lib.Trainer(c)
         alone = trainer.init()
@@ -222,7 +222,7 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
     monkeypatch.setattr(group_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
     state, rows = group.step(state)
     assert calls == [(1,)] * 6  # the 3 runs' episodes, one run a call, then their validation
-    strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
+    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
     for r, c in enumerate(cfgs):
         trainer = run_lib.Trainer(c)
         result = trainer.step(trainer.init())

@@ -22,7 +22,7 @@ from kx import evaluate as evaluate_cli
 from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import report
+from kx.evolve import outputs
 from kx.evolve import run as run_lib
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -63,14 +63,14 @@ def template(tmp_path_factory):
                                    champion_validation=jnp.asarray(0.5, jnp.float32),
                                    best_so_far=jnp.asarray(0.5, jnp.float32))
     run_dir.mkdir()
-    report.write_json(run_dir / "config.json", cfg.to_dict())
-    report.write_json(run_dir / "baselines.json", {"trials": 4, "states": "validation", "mean_fitness": BASELINES})
+    outputs.write_json(run_dir / "config.json", cfg.to_dict())
+    outputs.write_json(run_dir / "baselines.json", {"trials": 4, "states": "validation", "mean_fitness": BASELINES})
     rows = [_row(trainer, g) for g in range(DONE)]
-    report.write_rows(run_dir / "metrics.csv", rows, trainer.fields)
+    outputs.write_rows(run_dir / "metrics.csv", rows, trainer.fields)
     meta = {"config": cfg.to_dict(), "method": cfg.method, "generation": DONE, "best_so_far": 0.5,
             "best_fitness": 0.5, "champion_validation": 0.5, "best_validation": 0.5}
     ckpt.save(ckpt.manager(run_dir / "checkpoints", cfg.keep_checkpoints), DONE, state, meta)
-    report.plot_progress(rows, run_dir / "progress.png", "template", BASELINES, trainer.encoding.plot_field)
+    outputs.plot_progress(rows, run_dir / "progress.png", "template", BASELINES, trainer.encoding.plot_field)
     trainer.encoding.draw(state.champion, run_dir / "champion.png")
     return run_dir
 
@@ -279,8 +279,8 @@ def test_evaluate_writes_its_json_atomically_with_a_t_interval(run_dir, monkeypa
 
     monkeypatch.setattr(ev, "evaluate", fake_evaluate)
     written = []
-    real = report.write_json
-    monkeypatch.setattr(report, "write_json", lambda path, obj: (written.append(pathlib.Path(path)), real(path, obj)))
+    real = outputs.write_json
+    monkeypatch.setattr(outputs, "write_json", lambda path, obj: (written.append(pathlib.Path(path)), real(path, obj)))
     assert evaluate_cli.main([str(run_dir), "--trials", str(FITNESS.size), "--no-baselines"]) == 0
     out = run_dir / "eval" / f"3v2-{FITNESS.size}-seed0.json"
     assert written == [out]
@@ -299,14 +299,14 @@ def test_confidence_interval_edge_cases():
 
 def test_write_json_is_atomic(tmp_path, monkeypatch):
     path = tmp_path / "a.json"
-    report.write_json(path, {"x": 1})
+    outputs.write_json(path, {"x": 1})
 
     def fail(*a, **k):
         raise OSError("disk full")
 
-    monkeypatch.setattr(report.os, "replace", fail)
+    monkeypatch.setattr(outputs.os, "replace", fail)
     with pytest.raises(OSError):
-        report.write_json(path, {"x": 2})
+        outputs.write_json(path, {"x": 2})
     monkeypatch.undo()
     assert json.loads(path.read_text()) == {"x": 1}
     assert [p.name for p in tmp_path.iterdir()] == ["a.json"]  # no temporary file left

@@ -22,7 +22,7 @@ from kx import evaluate as evaluate_cli
 from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import report, streams
+from kx.evolve import outputs, streams
 from kx.evolve import run as run_lib
 from kx.sim import env
 
@@ -121,7 +121,7 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     rows = _rows(run_dir)
     trainer = run_lib.Trainer(_cfg(run_dir))
     assert [int(r["generation"]) for r in rows] == list(range(GENERATIONS))
-    assert list(rows[0]) == list(report.csv_fields(trainer.encoding, trainer.objective))
+    assert list(rows[0]) == list(outputs.csv_fields(trainer.encoding, trainer.objective))
     best = [float(r["best_fitness"]) for r in rows]
     so_far = [float(r["best_so_far"]) for r in rows]
     assert so_far == list(np.maximum.accumulate(np.float32(best)).astype(float))
@@ -223,7 +223,7 @@ def sigkill_then_resume(trained, tmp_path):
     b, meta_b = _final_state(run_dir)
     assert meta_a == meta_b
     _assert_same_state(a, b)
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in report.TIMING_FIELDS} for r in rows]  # noqa: E731
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in outputs.TIMING_FIELDS} for r in rows]  # noqa: E731
     got, want = strip(_rows(run_dir)), strip(_rows(reference))
     diff = [(i, k, r[k], w.get(k)) for i, (r, w) in enumerate(zip(got, want)) for k in r if r[k] != w.get(k)]
     assert len(got) == len(want) and not diff, diff[:5]
@@ -480,8 +480,8 @@ def test_training_validation_and_test_states_are_disjoint_streams(tmp_path):
     assert "validation_trials: allowed an integer in [1, 100000]" in str(
         pytest.raises(cfg_lib.ConfigError, cfg_lib.validate, cfg_lib.load(None, ["validation_trials=0"])).value)
     row = tr.step(tr.init()).row
-    assert "validation" in report.progress_line(row, 1, None, tr.encoding)
-    report.plot_progress([row], tmp_path / "p.png", "one", lower=tr.encoding.plot_field)
+    assert "validation" in outputs.progress_line(row, 1, None, tr.encoding)
+    outputs.plot_progress([row], tmp_path / "p.png", "one", lower=tr.encoding.plot_field)
     assert (tmp_path / "p.png").stat().st_size > 1000
 
 

@@ -17,7 +17,7 @@ import pytest
 
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import report
+from kx.evolve import outputs
 from kx.evolve import run as run_lib
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -38,7 +38,7 @@ def _rows(run_dir):
 
 def _strip(rows):
     """Rows as csv writes them, timings left out (they differ from run to run)."""
-    return [{k: str(v) for k, v in r.items() if k not in report.TIMING_FIELDS} for r in rows]
+    return [{k: str(v) for k, v in r.items() if k not in outputs.TIMING_FIELDS} for r in rows]
 
 
 def _assert_same_tree(a, b):
@@ -101,7 +101,7 @@ def test_metrics_csv_has_the_novelty_columns_and_the_archive_grows(runs):
     fields = trainer.objective.metric_fields
     assert fields == ("mean_novelty", "champion_novelty", "archive_size", "archive_added", "score_std")
     rows = _rows(runs["run_dir"])
-    assert list(rows[0]) == list(report.csv_fields(trainer.encoding, trainer.objective))
+    assert list(rows[0]) == list(outputs.csv_fields(trainer.encoding, trainer.objective))
     assert [int(r["generation"]) for r in rows] == list(range(GENERATIONS))
     size = [int(r["archive_size"]) for r in rows]
     added = [int(r["archive_added"]) for r in rows]

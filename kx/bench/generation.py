@@ -12,7 +12,7 @@ def run(args) -> None:
     import numpy as np
 
     from kx.evolve import config as cfg_lib
-    from kx.evolve import report
+    from kx.evolve import outputs
     from kx.evolve import run as run_lib
 
     cfg = cfg_lib.load(args.config, [f"seed={args.seed}", f"generations={args.generations}"])
@@ -23,7 +23,7 @@ def run(args) -> None:
 
     def log(row):
         rows.append(row)
-        print(report.progress_line(row, args.generations, None, trainer.encoding), flush=True)
+        print(outputs.progress_line(row, args.generations, None, trainer.encoding), flush=True)
 
     run_lib.evolve_in_memory(trainer, log=log)
     body = rows[args.skip:] or rows

@@ -15,7 +15,7 @@ def _timed_generations(cfg, generations: int, log_name: str):
     (``tell``) and the champion's validation. Returns one dict per generation."""
     import jax
 
-    from kx.evolve import report
+    from kx.evolve import outputs
     from kx.evolve import run as run_lib
 
     trainer = run_lib.Trainer(cfg)
@@ -36,7 +36,7 @@ def _timed_generations(cfg, generations: int, log_name: str):
         state, row = res.state, res.row
         row = dict(row, build_seconds=built[0], play_seconds=row["eval_seconds"] - built[0])
         rows.append(row)
-        print(f"{log_name} " + report.progress_line(row, generations, None, enc)
+        print(f"{log_name} " + outputs.progress_line(row, generations, None, enc)
               + f"  build {row['build_seconds']:.3f} s  play {row['play_seconds']:.3f} s  live steps "
               f"{row['live_steps']}", flush=True)
     return trainer, rows

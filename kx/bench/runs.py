@@ -40,7 +40,7 @@ def run(args) -> None:
 
     from kx.evolve import config as cfg_lib
     from kx.evolve import group as group_lib
-    from kx.evolve import report
+    from kx.evolve import outputs
     from kx.evolve import run as run_lib
 
     sizes = sorted({int(r) for r in args.group_sizes.split(",")})
@@ -51,7 +51,7 @@ def run(args) -> None:
           f"{cfg0.trials} trials, {args.generations} generations; R = {sizes}", flush=True)
     cfgs = [cfg_lib.load(args.config, [f"generations={args.generations}", "gif=false", f"seed={s}"])
             for s in range(max(sizes))]
-    strip = lambda row: {k: v for k, v in row.items() if k not in report.EXECUTION_FIELDS}  # noqa: E731
+    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
 
     warm_seed = 10_000  # seeds of the untimed warm-up runs, outside the timed ones
 

@@ -35,7 +35,7 @@ import ml_collections
 import numpy as np
 
 from kx.evolve import config as cfg_lib
-from kx.evolve import report, streams
+from kx.evolve import outputs, streams
 from kx.evolve import run as run_lib
 from kx.evolve.checkpoint import RunLock, RunState
 from kx.evolve.errors import ConfigError, RunError
@@ -246,7 +246,7 @@ def progress_line(rows: list[dict], total: int, eta: float | None, seconds: floa
     g = max(int(r["generation"]) for r in rows)
     col = lambda k: np.array([float(r[k]) for r in rows])  # noqa: E731
     best, mean, val = col("best_fitness"), col("mean_fitness"), col("best_validation")
-    eta_text = "" if eta is None else f"  ETA {report.format_seconds(eta)}"
+    eta_text = "" if eta is None else f"  ETA {outputs.format_seconds(eta)}"
     return (f"gen {g + 1:3d}/{total}  {len(rows)} runs  best {best.max():.4f} (median {np.median(best):.4f})"
             f"  mean {np.median(mean):.4f}  validated {val.max():.4f} (median {np.median(val):.4f})"
             f"  live {float(rows[0]['live_fraction']):.0%}  {seconds:.2f} s/gen (eval "

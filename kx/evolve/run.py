@@ -58,7 +58,7 @@ import numpy as np
 
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
-from kx.evolve import report, streams, transfer
+from kx.evolve import outputs, streams, transfer
 from kx.evolve.checkpoint import RunLock, RunState
 from kx.evolve.encoding import stack
 from kx.evolve.errors import RunError
@@ -86,7 +86,7 @@ class Trainer:
         self.exp = cfg_lib.validate(cfg)
         self.encoding = self.exp.encoding
         self.objective = self.exp.objective
-        self.fields = report.csv_fields(self.encoding, self.objective)
+        self.fields = outputs.csv_fields(self.encoding, self.objective)
         keys = streams.validation(cfg.seed)
         self.validation_eval_key = keys.eval
         self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
@@ -190,7 +190,7 @@ class Trainer:
         return GenerationResult(row=row, state=state)
 
 
-EXECUTION_FIELDS = report.EXECUTION_FIELDS
+EXECUTION_FIELDS = outputs.EXECUTION_FIELDS
 
 
 def advance(state: RunState, g: int, best: float, champ_genotype, validation: float, learner,
@@ -352,7 +352,7 @@ class OpenRun:
         self.state, row = result.state, result.row
         g = int(row["generation"])
         self.rows.append(row)
-        report.append_row(run_dir / "metrics.csv", row, self.trainer.fields)
+        outputs.append_row(run_dir / "metrics.csv", row, self.trainer.fields)
         self.done_here += 1
         # ETA from this process's own clock, over its generations after the first (which compiles), each
         # with its checkpoint and plot: never from metrics.csv, which may hold fewer rows (deleted, cut)
@@ -360,7 +360,7 @@ class OpenRun:
             self.t_first = t_step
         per_gen = (t_step - self.t_first) / (self.done_here - 1) if self.done_here > 1 else None
         if not self.quiet:
-            self.log(report.progress_line(row, cfg.generations,
+            self.log(outputs.progress_line(row, cfg.generations,
                                           None if per_gen is None else per_gen * (cfg.generations - g - 1), enc))
         last = g + 1 == cfg.generations
         if (g + 1) % cfg.checkpoint_every == 0 or last:
@@ -371,7 +371,7 @@ class OpenRun:
             # progress.png follows the checkpoints, redrawn at most every PLOT_EVERY_S seconds (drawing
             # it takes about 0.25 s, a third of a small run's generation) and always after the last one
             if not last and time.perf_counter() - self.last_plot >= PLOT_EVERY_S:
-                report.plot_progress(self.rows, run_dir / "progress.png", self._title, self.baselines,
+                outputs.plot_progress(self.rows, run_dir / "progress.png", self._title, self.baselines,
                                      enc.plot_field)
                 self.last_plot = time.perf_counter()
         return row
@@ -386,7 +386,7 @@ class OpenRun:
         trainer, run_dir, state, rows, log = self.trainer, self.run_dir, self.state, self.rows, self.log
         cfg, enc = trainer.cfg, trainer.encoding
         if rows:
-            report.plot_progress(rows, run_dir / "progress.png", self._title, self.baselines, enc.plot_field)
+            outputs.plot_progress(rows, run_dir / "progress.png", self._title, self.baselines, enc.plot_field)
         written = ["metrics.csv", "baselines.json", "progress.png", "checkpoints/"]
         if rows and int(state.champion_generation) >= 0:
             if cfg.gif:
@@ -447,7 +447,7 @@ def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite
                 log(f"nothing to do: {start} generations done, {cfg.generations} asked (checkpoint {got} of "
                     f"{run_dir}); nothing written (--config.generations=N runs it longer)")
                 return OpenRun(trainer=trainer, run_dir=run_dir, state=state, start=start, log=log, done=True,
-                               rows=report.read_rows(metrics_path, below=start))
+                               rows=outputs.read_rows(metrics_path, below=start))
         elif step is not None:
             raise RunError(f"--step {step}: {run_dir} has no checkpoint yet")
         removed = ckpt.clean_tmp(run_dir)  # a checkpoint a kill interrupted: never complete, never read
@@ -468,9 +468,9 @@ def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite
         record[cfg_lib.SOURCE_RECORD] = saved_record
     elif trainer.source is not None:  # resolved path, concrete step and digest, before the first generation
         record[cfg_lib.SOURCE_RECORD] = trainer.source.record()
-    report.write_json(run_dir / "config.json", record)
-    rows = report.read_rows(metrics_path, below=start)
-    report.write_rows(metrics_path, rows, trainer.fields)  # drops rows of generations after the checkpoint
+    outputs.write_json(run_dir / "config.json", record)
+    rows = outputs.read_rows(metrics_path, below=start)
+    outputs.write_rows(metrics_path, rows, trainer.fields)  # drops rows of generations after the checkpoint
     manager = ckpt.manager(run_dir / "checkpoints", cfg.keep_checkpoints)
     if state is None:
         state = trainer.init()
@@ -481,7 +481,7 @@ def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite
         log(f"transfer: seeded ({src.seeding}) from {src.run_dir} checkpoint {src.step} ({src.cfg.task}, "
             f"{int(src.state.generation)} generations; {src.digest[:19]}...)")
     baselines = trainer.validation_baselines()
-    report.write_json(run_dir / "baselines.json", {"trials": cfg.validation_trials, "states": "validation",
+    outputs.write_json(run_dir / "baselines.json", {"trials": cfg.validation_trials, "states": "validation",
                                                    "mean_fitness": baselines})
     log(f"validation states ({cfg.validation_trials}): "
         + ", ".join(f"{k} policy {v:.4f}" for k, v in baselines.items()))

@@ -7,7 +7,7 @@ import csv
 import io
 import pathlib
 
-from kx.evolve import report as run_report
+from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
 
 
@@ -36,4 +36,4 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
     w.writeheader()
     for r in rows:
         w.writerow({k: _cell(r[k]) for k in fields})
-    run_report.write_text(path, buf.getvalue())
+    run_outputs.write_text(path, buf.getvalue())

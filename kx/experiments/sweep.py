@@ -22,8 +22,8 @@ import numpy as np
 
 from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
+from kx.evolve import outputs as run_outputs
 from kx.evolve import protocol as evolve_protocol
-from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, stats
@@ -119,7 +119,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
             diff = [k for k in have if have[k] != sweep.to_json().get(k)]
             raise RunError(f"{out} holds another sweep (differs in {', '.join(diff)}): use another --out")
     else:
-        run_report.write_json(spec_path, sweep.to_json())
+        run_outputs.write_json(spec_path, sweep.to_json())
     rows = read_results(out / "results.csv")
     done = {(r["combination"], int(r["seed"])) for r in rows}
     total = len(combos) * len(sweep.seeds)

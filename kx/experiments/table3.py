@@ -44,8 +44,8 @@ import ml_collections
 
 from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
+from kx.evolve import outputs as run_outputs
 from kx.evolve import protocol as evolve_protocol
-from kx.evolve import report as run_report
 from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile
@@ -206,7 +206,7 @@ def _open(out: pathlib.Path, protocol: Protocol) -> None:
             raise RunError(f"{out} holds another protocol ({'; '.join(diff)}): use another --out, or the same "
                            "parameters to add runs to it")
     else:
-        run_report.write_json(path, want)
+        run_outputs.write_json(path, want)
 
 
 def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float, share: int = 1) -> dict:
@@ -280,7 +280,7 @@ class _Progress:
                 self.per_gen.setdefault((spec.method, spec.target), []).append(now - self.last)
             self.last = now
             eta = self.eta(int(m.group(1)))
-            when = "" if eta is None else f"  protocol ETA {run_report.format_seconds(eta)}"
+            when = "" if eta is None else f"  protocol ETA {run_outputs.format_seconds(eta)}"
             self.log(f"[{self.done}/{self.total} runs | {self.what}] gen {m.group(1)}/{m.group(2)}  "
                      f"best {m.group(3)}{when}")
         elif not re.sub(r"^\[seed \d+\] ", "", text).startswith(("validation states", "kx.train:", "done:",

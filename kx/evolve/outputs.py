@@ -1,4 +1,5 @@
-"""What a run writes for its user: metrics.csv rows, the progress line, progress.png and atomic JSON files.
+"""What a run writes for its user (a run directory's outputs, not a report): metrics.csv rows, the
+progress line, progress.png and atomic JSON files.
 
 Every file is written atomically (a temporary file renamed into place) or appended one fsynced row at
 a time, so a kill leaves the old file or the new one. The columns of metrics.csv are the run loop's
