@@ -1,5 +1,5 @@
 """``python -m kx.bench transfer``: transferred against fresh populations at the start of each target task,
-for NEAT and HyperNEAT (the protocol: :mod:`kx.evolve.protocol`)."""
+for NEAT and HyperNEAT (the protocol: :mod:`kx.experiments.measure`)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,8 @@ def run(args) -> None:
 
     import numpy as np
 
-    from kx.evolve import protocol, streams
+    from kx.evolve import streams
+    from kx.experiments import measure as protocol
 
     seeds = list(range(args.seeds))
     methods = {"NEAT": "neat", "HyperNEAT": "hyperneat"}

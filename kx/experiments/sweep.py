@@ -23,10 +23,9 @@ import numpy as np
 from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
 from kx.evolve import outputs as run_outputs
-from kx.evolve import protocol as evolve_protocol
 from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, stats
+from kx.experiments import csvfile, measure, stats
 
 FIELDS = ("combination", "overrides", "seed", "task", "method", "generations", "episodes", "max_fitness",
           "test_fitness", "test_trials", "test_seed", "champion_generation", "wall_seconds")
@@ -141,7 +140,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
             group_lib.train_group(cfgs, dirs, resume=resume, log=show)
         wall = time.perf_counter() - t0
         for cfg, seed, d in zip(cfgs, seeds, dirs):
-            _, state, test = evolve_protocol.champion_on_test(d, sweep.test_seed, sweep.test_trials)
+            _, state, test = measure.champion_on_test(d, sweep.test_seed, sweep.test_trials)
             with (d / "metrics.csv").open() as f:
                 best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
             rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,

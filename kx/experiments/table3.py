@@ -45,14 +45,13 @@ import ml_collections
 from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
 from kx.evolve import outputs as run_outputs
-from kx.evolve import protocol as evolve_protocol
 from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile
+from kx.experiments import csvfile, measure
 
 METHODS = ("neat", "hyperneat", "cma_es")
-SOURCE_TASK = evolve_protocol.SOURCE_TASK
-TARGETS = evolve_protocol.TARGET_TASKS
+SOURCE_TASK = measure.SOURCE_TASK
+TARGETS = measure.TARGET_TASKS
 
 
 @dataclasses.dataclass(frozen=True)
@@ -209,12 +208,12 @@ def _open(out: pathlib.Path, protocol: Protocol) -> None:
         run_outputs.write_json(path, want)
 
 
-def measure(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float, share: int = 1) -> dict:
+def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float, share: int = 1) -> dict:
     """The results row of a finished run: its metrics.csv curves, and its validated champion on the
     protocol's test states of its task. ``share``: the size of the batched group it trained in (it is
     charged that share of ``wall`` and of the generations' times)."""
     d = run_dir(out, spec)
-    trainer, state, test = evolve_protocol.champion_on_test(d, protocol.seed, protocol.test_trials)
+    trainer, state, test = measure.champion_on_test(d, protocol.seed, protocol.test_trials)
     with (d / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
     cfg = trainer.cfg
@@ -353,7 +352,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             group_lib.train_group(cfgs, dirs, resume=resume, log=progress.line)
         wall = time.perf_counter() - t0
         for spec in chunk:
-            row = measure(protocol, spec, out, wall, share=len(chunk))
+            row = results_row(protocol, spec, out, wall, share=len(chunk))
             rows.append(row)
             csvfile.write(results_path, FIELDS, rows)
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
