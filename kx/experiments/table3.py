@@ -50,8 +50,8 @@ from kx.evolve.errors import RunError
 from kx.experiments import csvfile, measure
 
 METHODS = ("neat", "hyperneat", "cma_es")
-SOURCE_TASK = measure.SOURCE_TASK
-TARGETS = measure.TARGET_TASKS
+SOURCE_TASK = "3v2"
+TARGETS = ("4v3", "5v3", "6v4")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,9 +160,11 @@ def _reference_population(protocol: Protocol) -> int:
 
 
 def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collections.ConfigDict:
-    """The config of one run: the method's shipped config of the run's task, the protocol's overrides, the
-    run's seed, objective and generations (CMA-ES's scaled to NEAT's evaluations), no GIF, and for a
-    transfer run its source's run directory."""
+    """The config of one run, source or target: the method's shipped config of the run's task, the protocol's
+    overrides, the run's seed (:func:`run_seed`), objective and generations (CMA-ES's scaled to NEAT's
+    evaluations), no GIF, and for a transfer run its source's run directory under ``out``
+    (:func:`run_dir`). The one config builder of the experiments' runs: ``python -m kx.bench transfer``
+    builds its sources and targets with it too."""
     generations = protocol.source_generations if spec.phase == "source" else protocol.target_generations
     objective = spec.setup if spec.phase == "source" else SETUPS[spec.setup].objective
     src = source_of(spec)
