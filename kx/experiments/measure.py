@@ -1,6 +1,6 @@
-"""Measuring runs' champions on held-out test states: a finished run's validated champion
-(:func:`champion_on_test`), which :mod:`kx.experiments.table3` and :mod:`kx.experiments.sweep` measure, and a
-target run's first generation, which ``python -m kx.bench transfer`` measures (:func:`first_generation`).
+"""Training runs and measuring their champions on held-out test states: the one loop that
+:mod:`kx.experiments.table3` and :mod:`kx.experiments.sweep` share (:func:`train_and_measure`), and a target
+run's first generation, which ``python -m kx.bench transfer`` measures (:func:`first_generation`).
 
 A run's *test states* are start states of its task from the test stream of a seed (:func:`kx.evolve.streams.test`)
 that no run trains or validates on: every run measured with the same test seed and number of trials plays the
@@ -9,11 +9,15 @@ same states (of its own task). The runs' configs are the callers' (Table 3's: :f
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import pathlib
+import time
+from typing import Callable, Iterator
 
 import ml_collections
 
+from kx.evolve import group as group_lib
 from kx.evolve import run as run_lib
 from kx.evolve import streams
 from kx.evolve.encoding import stack
@@ -40,6 +44,56 @@ def champion_on_test(run_dir: str | pathlib.Path, test_seed: int,
     keys = streams.test(test_seed)
     starts = held_out_states(trainer, keys, test_trials)
     return trainer, state, fitness_on(trainer, state.champion, starts, keys.eval)
+
+
+def started(run_dir: pathlib.Path) -> bool:
+    """Whether ``run_dir`` holds a run that trains on from its checkpoint (its config.json is written)."""
+    return (pathlib.Path(run_dir) / "config.json").is_file()
+
+
+@dataclasses.dataclass(frozen=True)
+class Finished:
+    """A finished run, measured."""
+
+    run_dir: pathlib.Path
+    trainer: run_lib.Trainer  # of the run's own config (its config.json)
+    state: object  # its last checkpoint's run state
+    test: float  # its validated champion's mean fitness on the test states
+    metrics: list[dict]  # its metrics.csv rows (strings), one per generation
+    wall: float  # seconds the group it trained in took, from the start of training to the end
+    share: int  # the size of that group: the run is charged 1/share of its time
+
+    @property
+    def max_fitness(self) -> float:
+        """The paper's measure: the maximum over the run of the generation's best training fitness."""
+        return max(float(r["best_fitness"]) for r in self.metrics)
+
+    @property
+    def wall_seconds(self) -> float:
+        """Its share of its group's wall time, in seconds (3 decimals)."""
+        return round(self.wall / self.share, 3)
+
+
+def train_and_measure(cfgs: list[ml_collections.ConfigDict], dirs: list[pathlib.Path], test_seed: int,
+                      test_trials: int, log: Callable[[str], None] = print) -> Iterator[Finished]:
+    """Trains the runs of ``cfgs`` in their run directories ``dirs``, each resumed from its checkpoint when its
+    directory holds one (:func:`started`): one run by :func:`kx.evolve.run.train`, more as one batched group
+    (:func:`kx.evolve.group.train_group`; the same results, bit for bit); ``log`` receives their progress
+    lines. Then yields each run, in order, measured (:class:`Finished`): its validated champion on
+    ``test_trials`` test states of its task from the test stream of ``test_seed``
+    (:func:`champion_on_test`), its metrics.csv and its share of the wall time."""
+    resume = [started(d) for d in dirs]
+    t0 = time.perf_counter()
+    if len(cfgs) == 1:
+        run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=log)
+    else:
+        group_lib.train_group(cfgs, dirs, resume=resume, log=log)
+    wall = time.perf_counter() - t0
+    for d in dirs:
+        trainer, state, test = champion_on_test(d, test_seed, test_trials)
+        with (pathlib.Path(d) / "metrics.csv").open() as f:
+            metrics = list(csv.DictReader(f))
+        yield Finished(pathlib.Path(d), trainer, state, test, metrics, wall, len(dirs))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -10,20 +10,16 @@ dimension ``config=FILE1,FILE2`` varies the config file itself (Table 2's two re
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import itertools
 import json
 import pathlib
-import time
 from typing import Callable
 
 import numpy as np
 
 from kx.evolve import config as cfg_lib
-from kx.evolve import group as group_lib
 from kx.evolve import outputs as run_outputs
-from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, measure, stats
 
@@ -129,29 +125,22 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
     for c, seeds in chunks:
         cfgs = [_config(sweep, c, seed) for seed in seeds]
         dirs = [out / "runs" / slug(c) / f"seed{seed}" for seed in seeds]
-        resume = [(d / "config.json").is_file() for d in dirs]
         which = f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}"
         prefix = f"[{n_done}/{total} runs | {' '.join(c)} {which}]"
         show = lambda s: log(f"{prefix} {' '.join(s.split()[:6])}") if s.startswith("gen ") else None  # noqa: E731
-        t0 = time.perf_counter()
-        if len(seeds) == 1:
-            run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=show)
-        else:
-            group_lib.train_group(cfgs, dirs, resume=resume, log=show)
-        wall = time.perf_counter() - t0
-        for cfg, seed, d in zip(cfgs, seeds, dirs):
-            _, state, test = measure.champion_on_test(d, sweep.test_seed, sweep.test_trials)
-            with (d / "metrics.csv").open() as f:
-                best = max(float(r["best_fitness"]) for r in csv.DictReader(f))
+        measured = measure.train_and_measure(cfgs, dirs, sweep.test_seed, sweep.test_trials, log=show)
+        for cfg, seed, finished in zip(cfgs, seeds, measured):
             rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,
                          "method": cfg.method, "generations": cfg.generations,
-                         "episodes": cfg.generations * cfg.population_size * cfg.trials, "max_fitness": best,
-                         "test_fitness": test, "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
-                         "champion_generation": int(state.champion_generation),
-                         "wall_seconds": round(wall / len(seeds), 3)})
+                         "episodes": cfg.generations * cfg.population_size * cfg.trials,
+                         "max_fitness": finished.max_fitness, "test_fitness": finished.test,
+                         "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
+                         "champion_generation": int(finished.state.champion_generation),
+                         "wall_seconds": finished.wall_seconds})
             csvfile.write(out / "results.csv", FIELDS, rows)
             n_done += 1
-            log(f"[{n_done}/{total} runs | {' '.join(c)} seed {seed}] test {test:.4f}, max fitness {best:.4f}")
+            log(f"[{n_done}/{total} runs | {' '.join(c)} seed {seed}] test {finished.test:.4f}, max fitness "
+                f"{finished.max_fitness:.4f}")
     return rows
 
 

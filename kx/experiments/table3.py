@@ -30,7 +30,6 @@ column of results.csv but the times is the same whatever ``batch``. A run of a g
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import hashlib
 import json
@@ -43,9 +42,7 @@ from typing import Callable, Iterable
 import ml_collections
 
 from kx.evolve import config as cfg_lib
-from kx.evolve import group as group_lib
 from kx.evolve import outputs as run_outputs
-from kx.evolve import run as run_lib
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, measure
 
@@ -210,15 +207,11 @@ def _open(out: pathlib.Path, protocol: Protocol) -> None:
         run_outputs.write_json(path, want)
 
 
-def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: float, share: int = 1) -> dict:
-    """The results row of a finished run: its metrics.csv curves, and its validated champion on the
-    protocol's test states of its task. ``share``: the size of the batched group it trained in (it is
-    charged that share of ``wall`` and of the generations' times)."""
-    d = run_dir(out, spec)
-    trainer, state, test = measure.champion_on_test(d, protocol.seed, protocol.test_trials)
-    with (d / "metrics.csv").open() as f:
-        rows = list(csv.DictReader(f))
-    cfg = trainer.cfg
+def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: measure.Finished) -> dict:
+    """The results row of the finished run of ``spec``, measured on the protocol's test states of its task
+    (:func:`kx.experiments.measure.train_and_measure`): its metrics.csv curves, its validated champion's test
+    fitness, and its share of its batched group's wall time and of the generations' times."""
+    cfg, rows, share = finished.trainer.cfg, finished.metrics, finished.share
     src = source_of(spec)
     src_evals = 0
     if src is not None:
@@ -229,10 +222,10 @@ def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, wall: floa
         "seed": cfg.seed, "source_seed": "" if src is None else run_seed(protocol.seed, *src.key),
         "objective": cfg.objective, "population": cfg.population_size, "trials": cfg.trials,
         "generations": cfg.generations, "episodes": cfg.generations * cfg.population_size * cfg.trials,
-        "source_episodes": src_evals, "max_fitness": max(float(r["best_fitness"]) for r in rows),
-        "test_fitness": test, "test_trials": protocol.test_trials,
-        "champion_generation": int(state.champion_generation), "protocol_seed": protocol.seed,
-        "wall_seconds": round(wall / share, 3),
+        "source_episodes": src_evals, "max_fitness": finished.max_fitness,
+        "test_fitness": finished.test, "test_trials": protocol.test_trials,
+        "champion_generation": int(finished.state.champion_generation), "protocol_seed": protocol.seed,
+        "wall_seconds": finished.wall_seconds,
         "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows) / share, 3),
         "best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
         "best_validation": " ".join(format(float(r["best_validation"]), ".9g") for r in rows),
@@ -343,18 +336,13 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     for chunk in chunks:
         cfgs = [config(protocol, spec, out) for spec in chunk]
         dirs = [run_dir(out, spec) for spec in chunk]
-        resume = [(d / "config.json").is_file() for d in dirs]
+        resumed = sum(measure.started(d) for d in dirs)
         progress.start(chunk[0], _span(chunk))
         log(f"[{progress.done}/{total} runs] {_span(chunk)}: seeds {', '.join(str(c.seed) for c in cfgs)}, "
-            f"{cfgs[0].generations} generations" + (f" ({sum(resume)} resumed)" if any(resume) else ""))
-        t0 = time.perf_counter()
-        if len(chunk) == 1:
-            run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=progress.line)
-        else:
-            group_lib.train_group(cfgs, dirs, resume=resume, log=progress.line)
-        wall = time.perf_counter() - t0
-        for spec in chunk:
-            row = results_row(protocol, spec, out, wall, share=len(chunk))
+            f"{cfgs[0].generations} generations" + (f" ({resumed} resumed)" if resumed else ""))
+        measured = measure.train_and_measure(cfgs, dirs, protocol.seed, protocol.test_trials, log=progress.line)
+        for spec, finished in zip(chunk, measured):
+            row = results_row(protocol, spec, out, finished)
             rows.append(row)
             csvfile.write(results_path, FIELDS, rows)
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
