@@ -3,10 +3,12 @@ protocol interrupted mid-way that resumes and redoes no finished run; distinct p
 that regenerates byte for byte wherever its folder lies; a 2 x 2 x 2 sweep and its table."""
 
 import csv
+import json
 import math
 import pathlib
 import re
 import shutil
+import types
 
 import numpy as np
 import pytest
@@ -16,7 +18,7 @@ import statsmodels.stats.multitest
 
 from kx.evolve import checkpoint as ckpt
 from kx.experiments import __main__ as cli
-from kx.experiments import report, stats, sweep
+from kx.experiments import measure, report, stats, sweep
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
@@ -251,3 +253,65 @@ def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
     assert (tmp_path / "sw" / "sweep.png").stat().st_size > 1000
     assert sweep.parse_seeds("0-2,7") == (0, 1, 2, 7)
     assert pathlib.Path(path).name == "report.md"
+
+
+def _no_training(trained: list):
+    """A stand-in for :func:`kx.experiments.measure.train_and_measure` that trains nothing: it records the
+    run directories it is asked for and yields made-up measurements."""
+    def train_and_measure(cfgs, dirs, test_seed, test_trials, log):
+        for d in dirs:
+            trained.append(d)
+            yield types.SimpleNamespace(max_fitness=0.5, test=0.25, wall_seconds=1.0,
+                                        state=types.SimpleNamespace(champion_generation=0))
+    return train_and_measure
+
+
+def test_two_long_combinations_sharing_their_first_120_characters_both_run_in_folders_of_their_own(
+        tmp_path, monkeypatch):
+    fixed = ["neat.weight_perturb_power=2.5", "neat.weight_perturb_prob=0.9", "neat.weight_mutate_rate=1.0",
+             "neat.survival_threshold=0.2", "neat.compat_threshold=3.0"]
+    sw = sweep.Sweep(config="configs/neat_3v2.py", grid=sweep.parse_grid([*fixed, "neat.stagnation_limit=10,15"]),
+                     seeds=(0, 1), test_trials=4)
+    a, b = sw.combinations()
+    assert len(sweep.slug(a)) > 120 and sweep.slug(a)[:120] == sweep.slug(b)[:120]
+    names = sweep.names([a, b])
+    assert names[a] != names[b] and len(names[a]) == len(names[b]) == sweep.NAME_LENGTH
+    assert names[a][:103] == sweep.slug(a)[:103]
+    # short slugs are the names, unless two combinations share one
+    assert sweep.names([("x=1",), ("x=2",)]) == {("x=1",): "x-1", ("x=2",): "x-2"}
+    shared = sweep.names([("x=1.5",), ("x=1-5",)])
+    assert len(set(shared.values())) == 2 and all(n.startswith("x-1-5-") for n in shared.values())
+
+    trained = []
+    monkeypatch.setattr(measure, "train_and_measure", _no_training(trained))
+    rows = sweep.run(tmp_path / "sw", sw, log=lambda s: None, batch=1)
+    assert len(trained) == len(set(trained)) == 4
+    assert {(r["overrides"], r["seed"]) for r in rows} == {(sweep.key(c), s) for c in (a, b) for s in (0, 1)}
+    assert {r["combination"] for r in rows} == {names[a], names[b]}
+    trained.clear()  # run again: every run is found finished, none of the other combination's is taken for it
+    assert len(sweep.run(tmp_path / "sw", sw, log=lambda s: None)) == 4 and trained == []
+    with pytest.raises(ValueError, match="no spaces"):
+        sweep.parse_grid(["neat.hidden_activation=a b,c"])
+
+
+@pytest.mark.parametrize("name", ["neat_readings", "hyperneat_image"])
+def test_the_committed_sweeps_read_as_finished_under_the_same_names(tmp_path, monkeypatch, name):
+    """docs/sweeps/*: every run is found finished (nothing would run again) under the folder name it has,
+    and the report regenerates byte for byte from its results.csv."""
+    committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "sweeps" / name
+    spec = json.loads((committed / "sweep.json").read_text())
+    sw = sweep.Sweep(config=spec["config"], grid=tuple((f, tuple(v)) for f, v in spec["grid"]),
+                     seeds=tuple(spec["seeds"]), test_trials=spec["test_trials"], test_seed=spec["test_seed"],
+                     overrides=tuple(spec["overrides"]))
+    out = tmp_path / name
+    out.mkdir()
+    for f in ("sweep.json", "results.csv"):
+        shutil.copy(committed / f, out / f)
+    trained = []
+    monkeypatch.setattr(measure, "train_and_measure", _no_training(trained))
+    lines = []
+    rows = sweep.run(out, sw, log=lines.append)
+    assert trained == [] and lines == [f"kx sweep: {len(rows)} runs, {len(rows)} done, 0 to run -> {out}"]
+    names = sweep.names(sw.combinations())
+    assert {(r["combination"], r["overrides"]) for r in rows} == {(names[c], sweep.key(c)) for c in sw.combinations()}
+    assert sweep.write_report(out).read_bytes() == (committed / "report.md").read_bytes()

@@ -2,7 +2,8 @@
 
 ``python -m kx.experiments sweep --config F --grid field=v1,v2 [--grid ...] --seeds 0-9 --out DIR`` trains
 one run per (combination, seed) in ``DIR/runs/<combination>/seed<k>`` (resumed from its checkpoint if the
-sweep was killed, never redone once finished), plays each run's validated champion on the same
+sweep was killed, never redone once finished: results.csv's rows are keyed by the whole combination, its
+``overrides``; the folder's name is :func:`names`'), plays each run's validated champion on the same
 ``test_trials`` test states of its task (the test stream of ``test_seed``), and appends one row per run
 to ``DIR/results.csv``; ``DIR/report.md`` and ``DIR/sweep.png`` are written from it alone. A grid
 dimension ``config=FILE1,FILE2`` varies the config file itself (Table 2's two readings, say).
@@ -11,6 +12,7 @@ dimension ``config=FILE1,FILE2`` varies the config file itself (Table 2's two re
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import json
 import pathlib
@@ -41,7 +43,8 @@ class Sweep:
                 "test_trials": self.test_trials, "test_seed": self.test_seed, "overrides": list(self.overrides)}
 
     def combinations(self) -> list[tuple[str, ...]]:
-        """Every combination's overrides (``field=value`` per grid field), the first field varying slowest."""
+        """Every combination's overrides (``field=value`` per grid field), the first field varying slowest;
+        :func:`key` names one whole."""
         return [tuple(f"{f}={v}" for f, v in zip([f for f, _ in self.grid], vs))
                 for vs in itertools.product(*[v for _, v in self.grid])]
 
@@ -51,8 +54,8 @@ def parse_grid(items) -> tuple[tuple[str, tuple[str, ...]], ...]:
     for item in items:
         field, sep, values = item.partition("=")
         vals = tuple(v for v in values.split(",") if v)
-        if not sep or not field or not vals:
-            raise ValueError(f"--grid: allowed field=value1,value2,..., got {item!r}")
+        if not sep or not field or not vals or any(ch.isspace() for ch in item):
+            raise ValueError(f"--grid: allowed field=value1,value2,... (no spaces), got {item!r}")
         if field in [f for f, _ in out]:
             raise ValueError(f"--grid: {field} given twice")
         out.append((field, vals))
@@ -75,8 +78,35 @@ def parse_seeds(text: str) -> tuple[int, ...]:
     return tuple(seeds)
 
 
+def key(combination: tuple[str, ...]) -> str:
+    """The whole combination as one text, its ``field=value`` overrides joined by spaces (results.csv's
+    ``overrides``): what keys a finished run, with its seed (no grid value holds a space, :func:`parse_grid`)."""
+    return " ".join(combination)
+
+
 def slug(combination: tuple[str, ...]) -> str:
-    return "_".join(c.replace("=", "-").replace("/", "-").replace(".", "-") for c in combination)[:120]
+    """A combination's readable name: its overrides with ``=``, ``/`` and ``.`` as ``-``, joined by ``_``."""
+    return "_".join(c.replace("=", "-").replace("/", "-").replace(".", "-") for c in combination)
+
+
+#: the longest name of a combination's folder (:func:`names`)
+NAME_LENGTH = 120
+
+
+def names(combinations: list[tuple[str, ...]]) -> dict[tuple[str, ...], str]:
+    """Each combination's name: its folder ``DIR/runs/<name>`` and results.csv's ``combination``. Its
+    :func:`slug`, unless that is longer than :data:`NAME_LENGTH` or another combination of the sweep has the
+    same slug (``x=1.5`` and ``x=1-5``): then the slug cut to ``NAME_LENGTH - 17`` characters and ``-`` and
+    16 hex digits of a hash of the whole combination (:func:`key`), so that two combinations sharing their
+    first 120 characters keep apart."""
+    slugs = [slug(c) for c in combinations]
+    out = {}
+    for c, s in zip(combinations, slugs):
+        if len(s) > NAME_LENGTH or slugs.count(s) > 1:
+            digest = hashlib.blake2b(key(c).encode(), digest_size=8).hexdigest()
+            s = f"{s[:NAME_LENGTH - 17]}-{digest}"
+        out[c] = s
+    return out
 
 
 def _config(sweep: Sweep, combination: tuple[str, ...], seed: int):
@@ -116,21 +146,22 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
     else:
         run_outputs.write_json(spec_path, sweep.to_json())
     rows = read_results(out / "results.csv")
-    done = {(r["combination"], int(r["seed"])) for r in rows}
+    done = {(r["overrides"], int(r["seed"])) for r in rows}
+    name = names(combos)
     total = len(combos) * len(sweep.seeds)
-    todo = [(c, [s for s in sweep.seeds if (slug(c), s) not in done]) for c in combos]
+    todo = [(c, [s for s in sweep.seeds if (key(c), s) not in done]) for c in combos]
     chunks = [(c, seeds[i:i + batch]) for c, seeds in todo for i in range(0, len(seeds), batch)]
     n_done = total - sum(len(seeds) for _, seeds in todo)
     log(f"kx sweep: {total} runs, {n_done} done, {total - n_done} to run -> {out}")
     for c, seeds in chunks:
         cfgs = [_config(sweep, c, seed) for seed in seeds]
-        dirs = [out / "runs" / slug(c) / f"seed{seed}" for seed in seeds]
+        dirs = [out / "runs" / name[c] / f"seed{seed}" for seed in seeds]
         which = f"seed{'s' if len(seeds) > 1 else ''} {','.join(map(str, seeds))}"
         prefix = f"[{n_done}/{total} runs | {' '.join(c)} {which}]"
         show = lambda s: log(f"{prefix} {' '.join(s.split()[:6])}") if s.startswith("gen ") else None  # noqa: E731
         measured = measure.train_and_measure(cfgs, dirs, sweep.test_seed, sweep.test_trials, log=show)
         for cfg, seed, finished in zip(cfgs, seeds, measured):
-            rows.append({"combination": slug(c), "overrides": " ".join(c), "seed": seed, "task": cfg.task,
+            rows.append({"combination": name[c], "overrides": key(c), "seed": seed, "task": cfg.task,
                          "method": cfg.method, "generations": cfg.generations,
                          "episodes": cfg.generations * cfg.population_size * cfg.trials,
                          "max_fitness": finished.max_fitness, "test_fitness": finished.test,
@@ -156,8 +187,8 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
     rows = read_results(out / "results.csv")
     if not rows:
         raise RunError(f"{out / 'results.csv'}: no finished runs to report")
-    order = list(dict.fromkeys(r["combination"] for r in rows))  # the order the sweep ran them
-    by = {c: [r for r in rows if r["combination"] == c] for c in order}
+    order = list(dict.fromkeys(r["overrides"] for r in rows))  # the whole combinations, in the order they ran
+    by = {c: [r for r in rows if r["overrides"] == c] for c in order}
     first = rows[0]
     md = ["# Sweep", "", f"Generated by `python -m kx.experiments report` from `results.csv` alone: {len(rows)} runs "
           f"of {first['method']} in {first['task']}; each run's validated champion played the same "
