@@ -125,21 +125,11 @@ def load_config(args, overrides: list[str], run_dir: pathlib.Path):
 
 
 def parse_seeds(text: str) -> list[int]:
-    """``"0-3,7"`` -> ``[0, 1, 2, 3, 7]`` (``ConfigError`` naming ``--seeds`` otherwise)."""
-    from kx.evolve.errors import ConfigError
+    """``--seeds``: :func:`kx.evolve.config.parse_seeds` (``"0-3,7"`` -> ``[0, 1, 2, 3, 7]``; a ``ConfigError``
+    naming ``--seeds`` and the allowed forms otherwise), imported here, after the runtime's set-up."""
+    from kx.evolve import config as cfg_lib
 
-    seeds = []
-    for part in text.split(","):
-        lo, dash, hi = part.strip().partition("-")
-        try:
-            seeds += list(range(int(lo), int(hi) + 1)) if dash else [int(lo)]
-        except ValueError:
-            raise ConfigError(f"--seeds: allowed seeds and ranges such as 0-15 or 0,3,7; got {text!r}") from None
-    if not seeds or any(s < 0 or s >= 2**31 for s in seeds):
-        raise ConfigError(f"--seeds: allowed integers in [0, 2^31) such as 0-15 or 0,3,7; got {text!r}")
-    if len(set(seeds)) != len(seeds):
-        raise ConfigError(f"--seeds: each seed once; got {text!r}")
-    return seeds
+    return cfg_lib.parse_seeds(text)
 
 
 def group_configs(cfg, seeds: list[int]) -> list:

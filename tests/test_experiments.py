@@ -16,7 +16,9 @@ import scipy.stats
 import statsmodels.stats.diagnostic
 import statsmodels.stats.multitest
 
+from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
+from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
 from kx.experiments import measure, report, stats, sweep
 from kx.experiments import table3 as t3
@@ -237,7 +239,7 @@ def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
 def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
     sw = sweep.Sweep(config="configs/neat_3v2.py", grid=sweep.parse_grid(["neat.add_node_prob=0.03,0.2",
                                                                           "neat.add_link_prob=0.05,0.3"]),
-                     seeds=sweep.parse_seeds("0-1"), test_trials=4, overrides=(*SMALL[:-1], "generations=1"))
+                     seeds=(0, 1), test_trials=4, overrides=(*SMALL[:-1], "generations=1"))
     rows = sweep.run(tmp_path / "sw", sw, log=lambda s: None)
     assert len(rows) == 8 and len({(r["combination"], r["seed"]) for r in rows}) == 8
     path = sweep.write_report(tmp_path / "sw")
@@ -251,8 +253,27 @@ def test_a_two_by_two_sweep_over_two_seeds_writes_its_table(tmp_path):
     with (tmp_path / "sw" / "results.csv").open() as f:
         assert len(list(csv.DictReader(f))) == 8
     assert (tmp_path / "sw" / "sweep.png").stat().st_size > 1000
-    assert sweep.parse_seeds("0-2,7") == (0, 1, 2, 7)
     assert pathlib.Path(path).name == "report.md"
+
+
+@pytest.mark.parametrize("text, seeds", [("0-3", [0, 1, 2, 3]), ("5", [5]), ("0-2,7", [0, 1, 2, 7]),
+                                         (" 4, 2 ", [4, 2]), ("2147483647", [2**31 - 1])])
+def test_one_seed_parser_for_kx_train_and_sweeps(text, seeds):
+    assert parse_seeds(text) == train_cli.parse_seeds(text) == seeds
+
+
+@pytest.mark.parametrize("text", ["x", "", "1,,2", "-2", "3-1", "0-2,2", "1,1", "2-x", "0-2147483648", "1.5"])
+def test_bad_seeds_are_refused_naming_the_flag_and_the_allowed_forms(text, tmp_path, capsys):
+    want = f"--seeds: allowed N, A-B or A,B,C (mixed: 0-2,7) with 0 <= seed < 2**31, each seed once, got {text!r}"
+    for parse in (parse_seeds, train_cli.parse_seeds):
+        with pytest.raises(ConfigError) as e:
+            parse(text)
+        assert str(e.value) == want
+    argv = ["sweep", "--config", "configs/neat_3v2.py", "--grid", "trials=2,3", "--seeds", text,
+            "--out", str(tmp_path / "s")]
+    assert cli.main(argv) == 2
+    assert capsys.readouterr().err == f"python -m kx.experiments sweep: {want}\n"
+    assert not (tmp_path / "s").exists()
 
 
 def _no_training(trained: list):

@@ -369,3 +369,21 @@ def identity_mismatch(saved: dict, cfg: ml_collections.ConfigDict) -> str | None
         if a.get(field, "<absent>") != b.get(field, "<absent>"):
             return f"{field} = {a.get(field, '<absent>')!r} in the checkpoint, {b.get(field, '<absent>')!r} now"
     return None
+
+
+def parse_seeds(text: str) -> list[int]:
+    """The seeds of a ``--seeds`` flag (``kx.train``, ``kx.experiments sweep``): ``N``, ``A-B`` (``A`` to ``B``,
+    both included) or several of them separated by commas (``0-15``, ``0,3,7``, ``0-2,7``), each seed once and
+    a valid config ``seed``; otherwise a ``ConfigError`` naming the flag, the allowed forms and ``text``."""
+    allowed = "N, A-B or A,B,C (mixed: 0-2,7) with 0 <= seed < 2**31, each seed once"
+    seeds: list[int] = []
+    for part in text.split(","):
+        lo, dash, hi = part.strip().partition("-")
+        try:
+            a, b = int(lo), int(hi) if dash else int(lo)
+        except ValueError:
+            raise ConfigError(f"--seeds: allowed {allowed}, got {text!r}") from None
+        need(0 <= a <= b < 2**31, "--seeds", allowed, text)
+        seeds += range(a, b + 1)
+    need(len(set(seeds)) == len(seeds), "--seeds", allowed, text)
+    return seeds

@@ -83,8 +83,9 @@ def main(argv: list[str] | None = None) -> int:
             t3.run(args.out, protocol, specs, batch=args.batch)
             print(report.write(args.out))
         else:
+            from kx.evolve.config import parse_seeds
             from kx.experiments import sweep
-            sw = sweep.Sweep(config=args.config, grid=sweep.parse_grid(args.grid), seeds=sweep.parse_seeds(args.seeds),
+            sw = sweep.Sweep(config=args.config, grid=sweep.parse_grid(args.grid), seeds=tuple(parse_seeds(args.seeds)),
                              test_trials=args.test_trials, test_seed=args.test_seed, overrides=tuple(args.set))
             sweep.run(args.out, sw, batch=args.batch)
             print(sweep.write_report(args.out))

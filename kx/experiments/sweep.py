@@ -64,20 +64,6 @@ def parse_grid(items) -> tuple[tuple[str, tuple[str, ...]], ...]:
     return tuple(out)
 
 
-def parse_seeds(text: str) -> tuple[int, ...]:
-    """``0-9``, ``0,3,5`` or ``0-2,7``."""
-    seeds = []
-    try:
-        for part in text.split(","):
-            lo, sep, hi = part.partition("-")
-            seeds.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
-    except ValueError:
-        raise ValueError(f"--seeds: allowed integers and ranges like 0-9 or 0,3,5, got {text!r}") from None
-    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-        raise ValueError(f"--seeds: allowed distinct integers >= 0, got {text!r}")
-    return tuple(seeds)
-
-
 def key(combination: tuple[str, ...]) -> str:
     """The whole combination as one text, its ``field=value`` overrides joined by spaces (results.csv's
     ``overrides``): what keys a finished run, with its seed (no grid value holds a space, :func:`parse_grid`)."""
