@@ -131,6 +131,27 @@ def test_cma_es_budget_in_evaluations_equals_neats(tmp_path):
     assert src.generations * src.population_size == 150 * 20 and cma.trials == neat.trials == 30
 
 
+def test_every_committed_table3_run_is_built_again_as_it_ran(tmp_path):
+    """docs/table3: every row's run gets the same config from table3.config as the one it ran with, as far as
+    results.csv records it (seed, its source's seed, objective, population, trials, generations, episodes)."""
+    committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "table3"
+    spec = json.loads((committed / "protocol.json").read_text())
+    protocol = t3.Protocol(**{**spec, "overrides": tuple(spec["overrides"])})
+    rows = t3.read_results(committed / "results.csv")
+    assert len(rows) == 138
+    cfgs = {t3.row_key(r): t3.config(protocol, t3.RunSpec(*t3.row_key(r)), tmp_path) for r in rows}
+    for r in rows:
+        run = t3.RunSpec(*t3.row_key(r))
+        cfg = cfgs[run.key]
+        src = t3.source_of(run)
+        got = {"seed": cfg.seed, "source_seed": "" if src is None else cfgs[src.key].seed,
+               "objective": cfg.objective, "population": cfg.population_size, "trials": cfg.trials,
+               "generations": cfg.generations, "episodes": cfg.generations * cfg.population_size * cfg.trials}
+        assert {k: str(v) for k, v in got.items()} == {k: r[k] for k in got}, t3.row_key(r)
+        assert (cfg.task, cfg.method, cfg.gif) == (r["target"], r["method"], False)
+        assert cfg.transfer.source == ("" if src is None else str(t3.run_dir(tmp_path, src)))
+
+
 class _Interrupt(Exception):
     pass
 
