@@ -19,14 +19,11 @@ test: $(STAMP)  ## the default test suite (what CI runs)
 test-slow: $(STAMP)  ## the long tests
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder -m slow
 
-bench: $(STAMP)  ## every benchmark (neat_xor also installs the optional neat-python baseline)
-	$(PY) -m pip install -q -e '.[dev,bench]'
-	$(PY) -m kx.bench sim
-	$(PY) -m kx.bench neat_xor
-	$(PY) -m kx.bench neat_generation
-	$(PY) -m kx.bench generation
-	$(PY) -m kx.bench runs
-	$(PY) -m kx.bench learning
+bench: $(STAMP)  ## every benchmark of python -m kx.bench, one after another (long: one is python -m kx.bench NAME)
+	$(PY) -m pip install -q -e '.[dev,bench]'  # neat_xor's optional baseline, neat-python
+	for name in $$($(PY) -c 'from kx.bench.__main__ import BENCHES; print(*BENCHES)'); do \
+		echo "== python -m kx.bench $$name"; $(PY) -m kx.bench $$name || exit 1; \
+	done
 
 calibrate: $(STAMP)
 	$(PY) scripts/calibrate.py
