@@ -542,3 +542,40 @@ def test_a_config_without_hidden_slots_evolves_links_only():
     states, metrics = evolve(config, params, 4)
     assert ck.check_population(states[-1].population, config) == []
     assert sum(int(m["node_overflow"]) for m in metrics) > 0  # every add node is skipped and counted
+
+
+def test_trimmed_networks_compute_the_same_outputs_as_the_full_ones():
+    """The evaluator's networks keep only the hidden rows the population's genomes need
+    (network.trim, NEAT.policy_networks): the hidden values and the output sums are equal (== treats
+    +0.0 and -0.0 as equal, as a decision's comparison does), for every genome, with and without the
+    output activation, also for more rows than needed; and a group's [R, P] genomes take one call."""
+    rng = np.random.default_rng(0)
+    for config in (CFG, CPPN):
+        # the first generation with some hidden nodes, fewer than the slots: the case that matters
+        most = lambda p: int(np.asarray(jax.vmap(gn.n_hidden)(p)).max())  # noqa: E731
+        pop = next(s.population for s in wild_run(config, 60)[0] if 0 < most(s.population) < config.n_hidden - 1)
+        used = most(pop)
+        full = alg.build_networks(pop, config)
+        x = jnp.asarray(rng.uniform(-3, 3, (config.n_inputs, 64)).astype(np.float32))
+        rows = nw.hidden_rows(used, config.n_hidden)
+        for keep in sorted({used, rows, config.n_hidden}):
+            small = nw.trim(full, keep, config)
+            assert small.w_hid.shape[-2:] == (keep + config.n_outputs, keep)
+            for i in range(config.population_size):
+                for pre in (False, True):
+                    a = np.asarray(nw.forward(one(full, i), x, config, pre_activation=pre))
+                    b = np.asarray(nw.forward(one(small, i), x, config, pre_activation=pre))
+                    assert (a == b).all(), (config, keep, i, pre)
+        learner = alg.NEAT(config, WILD)
+        got = learner.policy_networks(pop)
+        assert got.w_hid.shape[-1] == rows
+        chex.assert_trees_all_equal(got, nw.trim(full, rows, config))
+        two = jax.tree.map(lambda a: jnp.stack([a, a[::-1]]), pop)  # [2, P]
+        both = learner.policy_networks(two)
+        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[0], both), got)
+        chex.assert_trees_all_equal(jax.tree.map(lambda a: a[1], both), jax.tree.map(lambda a: a[::-1], got))
+
+
+def test_hidden_rows_ladder():
+    assert [nw.hidden_rows(n, 16) for n in (0, 1, 4, 5, 8, 9, 16)] == [0, 4, 4, 8, 8, 16, 16]
+    assert nw.hidden_rows(3, 2) == 2 and nw.hidden_rows(0, 0) == 0

@@ -66,6 +66,10 @@ class Encoding(abc.ABC):
     #: run alone (measured, at the sizes of the shipped configs and groups of up to 16); a batched group
     #: (kx.evolve.group) calls the others run by run
     vmap_exact: ClassVar[frozenset] = frozenset({"ask", "tell", "policy_params"})
+    #: ``policy_params`` takes genotypes with any leading axes (a group's ``[R, P]``) itself, one call for
+    #: all runs, rather than being mapped over runs (NEAT: it reads its genomes' hidden-node counts on the
+    #: host to choose the networks' shape, which a vmap cannot)
+    policy_params_leading_axes: ClassVar[bool] = False
 
     def __init__(self, cfg: ml_collections.ConfigDict, sim: KeepAwayConfig, sim_params: KeepAwayParams):
         self.cfg, self.sim, self.sim_params = cfg, sim, sim_params

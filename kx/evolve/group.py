@@ -135,7 +135,8 @@ class RunGroup:
         self._ask = over_runs(enc.ask, "ask" in enc.vmap_exact)
         self._tell = over_runs(enc.tell, "tell" in enc.vmap_exact)
         self._score = over_runs(self.objective.score, self.objective.vmap_exact)
-        self._policy_params = over_runs(enc.policy_params, "policy_params" in enc.vmap_exact)
+        self._policy_params = (enc.policy_params if enc.policy_params_leading_axes
+                               else over_runs(enc.policy_params, "policy_params" in enc.vmap_exact))
         self._individual = jax.vmap(enc.individual)
 
     @classmethod

@@ -23,10 +23,11 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from kx.neat import genome as gn
 from kx.neat import innovation as inn
-from kx.neat.network import Network, build
+from kx.neat.network import Network, build, hidden_rows, trim
 from kx.neat.types import HIDDEN, Genome, NEATConfig, NEATError, NEATParams, NEATState
 
 I32, F32 = jnp.int32, jnp.float32
@@ -161,6 +162,15 @@ def ask(key: jax.Array, state: NEATState, params: NEATParams, config: NEATConfig
 def build_networks(population: Genome, config: NEATConfig) -> Network:
     """Networks of a whole population (``[P, ...]`` leaves)."""
     return jax.vmap(lambda g: build(g, config))(population)
+
+
+def policy_networks(population: Genome, rows: int, config: NEATConfig) -> Network:
+    """The networks of genomes with any leading axes (a population ``[P]``, a group's ``[R, P]``), with
+    ``rows`` hidden rows (:func:`kx.neat.network.trim`)."""
+    lead = population.node_kind.shape[:-1]
+    flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[len(lead):]), population)
+    nets = trim(build_networks(flat, config), rows, config)
+    return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), nets)
 
 
 def _finite(x: jax.Array) -> jax.Array:
@@ -315,6 +325,7 @@ def validate(config: NEATConfig, params: NEATParams) -> None:
 _init_jit = jax.jit(init, static_argnames=("config",))
 _tell_jit = jax.jit(tell, static_argnames=("config",))
 _build_jit = jax.jit(build_networks, static_argnames=("config",))
+_policy_networks_jit = jax.jit(policy_networks, static_argnames=("rows", "config"))
 _init_from_jit = jax.jit(init_from, static_argnames=("config",))
 _seed_copies_jit = jax.jit(seed_copies, static_argnames=("config",))
 
@@ -354,6 +365,17 @@ class NEAT:
 
     def networks(self, population: Genome) -> Network:
         return _build_jit(population, config=self.config)
+
+    def policy_networks(self, population: Genome) -> Network:
+        """The networks the evaluator plays, of genomes with any leading axes: those of
+        :meth:`networks`, but with only as many hidden rows as the genomes' most hidden nodes need
+        (:func:`kx.neat.network.hidden_rows`, :func:`kx.neat.network.trim`): the same decisions, for a
+        fraction of the cost while the population has few hidden nodes. The count is read on the host
+        (the genomes' node kinds), so this is not traced: call it outside ``jit`` and ``vmap``."""
+        kinds = np.asarray(population.node_kind)
+        used = int((kinds == HIDDEN).sum(axis=-1).max()) if kinds.size else 0
+        rows = hidden_rows(used, self.config.n_hidden)
+        return _policy_networks_jit(population, rows=rows, config=self.config)
 
     def init_from(self, population: Genome, next_node_id, next_innov, threshold=None,
                   params: NEATParams | None = None) -> NEATState:

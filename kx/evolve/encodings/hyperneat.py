@@ -114,6 +114,8 @@ class HyperNEATEncoding(NEATEncoding):
                               f"{sim.field_size} x {sim.field_size} cells")
         return bev_policy(sim, image=self.image, decision=self.decision, activation=self.substrate_activation)
 
+    policy_params_leading_axes = False  # its own policy_params: the substrate query, mapped over runs
+
     def policy_params(self, population):
         from kx.hyperneat.substrate import build
 

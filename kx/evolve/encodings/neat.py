@@ -144,8 +144,12 @@ class NEATEncoding(Encoding):
                 "genomes need the transfer mapping of SPEC section 5)")
         return neat_policy(sim, self.neat_config, self.layout)
 
+    #: policy_params takes genomes with any leading axes (a group's [R, P] in one call): the hidden rows
+    #: it keeps are read from the genomes on the host, so it is never vmapped (kx.evolve.group)
+    policy_params_leading_axes = True
+
     def policy_params(self, population):
-        return self.neat.networks(population)
+        return self.neat.policy_networks(population)
 
     # ------------------------------------------------------------------------------------- transfer
 
