@@ -47,26 +47,23 @@ def main() -> None:
     runtime.setup()
     import jax
     import numpy as np
-    from jax.sharding import NamedSharding, PartitionSpec
 
-    from kx.sim import env, policies
+    from kx.sim import env, lanes, policies
     from kx.sim import evaluate as ev
     from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
     config, params = KeepAwayConfig.from_task("3v2"), KeepAwayParams()
     starts = env.reset_batch(jax.random.key(0), args.episodes, params, config)
     policy, n_dev, keys = policies.heuristic(config), jax.local_device_count(), jax.random.key(1)[None]
-    mesh = ev._mesh(n_dev)
     ladder = ev.width_ladder(args.episodes, multiple=n_dev)
-    chain, layout = ev.rungs(ladder), ev._lane_layout(starts, False)
-    lanes_sharding = NamedSharding(mesh, PartitionSpec(None, "lanes"))
+    chain, layout = ev.rungs(ladder), lanes.lane_layout(starts, False)
 
     def prepare():
         rows, _ = ev._prepare(starts, None, keys, shared=False, n_groups=1, n_pol=1, n_trials=args.episodes,
                               width=ladder[0])
-        return jax.device_put(rows, lanes_sharding) if n_dev > 1 else rows
+        return lanes.put_lanes(rows, n_dev)
 
-    scalars = jax.device_put(ev._scalars(params, args.episodes, keys), NamedSharding(mesh, PartitionSpec()))
+    scalars = lanes.put_replicated(lanes.pack_scalars(params, args.episodes, keys), n_dev)
     rung = dict(policy=policy, config=config, n_dev=n_dev, layout=layout, n_groups=1, impl="threefry2x32")
     print(f"devices: {n_dev}; {args.episodes} heuristic episodes of 3v2; medians over {args.repeats} evaluations")
     print(f"prepare the lanes: {_median_ms(prepare, args.repeats):.2f} ms")
@@ -77,9 +74,10 @@ def main() -> None:
         for k, w in enumerate(chain):
             nxt = chain[k + 1] if k + 1 < len(chain) else 0
             t0 = time.perf_counter()
-            *lanes, _, ran = jax.block_until_ready(ev._advance_and_compact(rows, None, scalars, width=nxt, **rung))
+            *compacted, _, ran = jax.block_until_ready(ev._advance_and_compact(rows, None, scalars, width=nxt,
+                                                                                **rung))
             per[w].append((time.perf_counter() - t0, np.asarray(ran)[:, 0]))
-            rows = lanes[0] if lanes else None
+            rows = compacted[0] if compacted else None
     total = 0.0
     for w in chain:
         secs = float(np.median([s for s, _ in per[w][1:]]))  # the first pass warms up
@@ -97,12 +95,12 @@ def main() -> None:
         ms = _median_ms(lambda w=w: ev._advance_and_compact(done, None, scalars, width=w, **rung), args.repeats * 10)
         print(f"a rung with nothing to do, {'compacting to ' + str(w) if w else 'no compaction'}: {ms:.3f} ms")
 
-    lanes = jax.tree.map(lambda a: a[..., :4096], starts)
-    n = int(lanes.done.shape[-1])
+    block = jax.tree.map(lambda a: a[..., :4096], starts)
+    n = int(block.done.shape[-1])
     ids = np.arange(n, dtype=np.int32)
-    plain = jax.jit(ev._advance.__wrapped__, static_argnames=("policy", "config", "n_dev"))
-    args_ = (lanes, None, env.noise_words(keys[0], ids), ids, keys, np.int32(n), params, np.int32(400), np.int32(-1))
-    for name, fn in [("default", plain), ("LOOP_COMPILER_OPTIONS", ev._advance)] * 2:
+    plain = jax.jit(ev.advance.__wrapped__, static_argnames=("policy", "config", "n_dev"))
+    args_ = (block, None, env.noise_words(keys[0], ids), ids, keys, np.int32(n), params, np.int32(400), np.int32(-1))
+    for name, fn in [("default", plain), ("LOOP_COMPILER_OPTIONS", ev.advance)] * 2:
         ms = _median_ms(lambda fn=fn: fn(*args_, policy=policy, config=config, n_dev=n_dev)[1], 5)
         print(f"the step alone, {n} lanes x 400 iterations, compiled with {name}: {400 * n / ms / 1e3:.1f}M "
               f"lane-steps/s")

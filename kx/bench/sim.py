@@ -101,6 +101,25 @@ def _reference_work(config, params, seed: int = 0):
     return work
 
 
+def lockstep(policy, lane_params, lanes, params, config, *, key, iterations: int):
+    """The step alone: ``iterations`` iterations of every lane of ``lanes`` (``[.., n]``, lane ``i`` trial
+    ``i`` of the kick noise of ``key``) in lockstep on every device, finished lanes stepped too (no
+    narrowing, no early return), with a per-lane policy's ``lane_params``
+    (:func:`kx.sim.evaluate.advance`). Returns the state and, per device, the iterations it ran and its
+    live lanes ``[n_dev, 2]``. :func:`run` times it beside :func:`kx.sim.evaluate.evaluate`."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from kx.sim import env
+    from kx.sim import evaluate as ev
+
+    ids = jnp.arange(lanes.done.shape[-1], dtype=jnp.int32)
+    return ev.advance(lanes, lane_params, env.noise_words(key, ids), ids, key[None], np.int32(ids.shape[0]), params,
+                      np.int32(iterations), np.int32(-1), policy=policy, config=config,
+                      n_dev=jax.local_device_count())
+
+
 def _fmt(summary) -> str:
     med, lo, hi = summary
     return f"{med:,.0f}/s (median; samples {lo:,.0f} to {hi:,.0f}, spread {100 * (hi - lo) / med:.0f}%)"
@@ -142,13 +161,12 @@ def run(args) -> None:
     # stepped too), so that the per-call costs of the evaluator's ladder do not count.
     import numpy as np
 
-    from kx.sim import evaluate as ev
     lanes = jax.tree.map(lambda a: a[..., :4096], starts)
     n_lanes = int(lanes.done.shape[-1])  # 4096, or every episode when there are fewer
 
     def lock():
-        np.asarray(ev.lockstep(policies.heuristic(config), None, lanes, params, config, key=jax.random.key(1),
-                               iterations=400)[1])
+        np.asarray(lockstep(policies.heuristic(config), None, lanes, params, config, key=jax.random.key(1),
+                            iterations=400)[1])
         return 400 * n_lanes, 400 * n_lanes
 
     lock()

@@ -9,7 +9,8 @@ episodes pay no host round trips. Each rung compiles once per (policy, task, wid
 across generations. A batch whose episodes end early therefore costs about what its live steps cost,
 and the results equal those of each episode run alone (lanes never interact; the tests check this).
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
-``key`` in :func:`evaluate`.
+``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
+is :mod:`kx.sim.lanes`; this module steps them.
 
 Policies take their parameters in one of two ways (:class:`kx.sim.policies.Policy`, ``shared``). Per
 lane, each lane carries a copy of its policy's parameter set, batch-last like the state, gathered with
@@ -31,14 +32,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import math
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx.sim import env, ops
+from kx.sim import env, lanes, ops
 from kx.sim.policies import Policy, Shared
 from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
 
@@ -128,16 +128,6 @@ def _advance_local(state: State, lane_params: Any, noise_word: jax.Array, lane_i
     return state, jnp.stack([steps, jnp.sum(~state.done, dtype=jnp.int32)])[None]
 
 
-def _mesh(n_dev: int) -> jax.sharding.Mesh:
-    """The first ``n_dev`` devices, the lanes split over them."""
-    return jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
-
-
-def _lane_specs(tree):
-    """Lanes (the last axis of every leaf) split over the mesh."""
-    return jax.tree.map(lambda a: jax.sharding.PartitionSpec(*([None] * (a.ndim - 1)), "lanes"), tree)
-
-
 # The evaluator's loops are compiled for 512-bit vector registers where the CPU has them (AVX-512; XLA
 # CPU's default prefers 256 bits): the step alone ran 14.0M -> 16.5M lane-steps/s on 2 CPU devices, and
 # 20-27M -> 26-30M once the heuristic was vectorised (2026-12-02, scripts/profile_evaluator.py). Only
@@ -150,37 +140,23 @@ LOOP_COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
 
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev"), compiler_options=LOOP_COMPILER_OPTIONS)
-def _advance(state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at, table=None, *,
-             policy, config, n_dev):
+def advance(state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at, table=None, *,
+            policy, config, n_dev):
     """:func:`_advance_local` on each device's share of the lanes: every device runs its own loop
     and stops when its own lanes are done or fit its share of the next narrower width (a global
     count would need a collective every iteration, which measured slower). A shared policy's
     ``table`` is replicated: every device reads the whole of it. Returns the state and, per device,
-    the iterations it ran and its live lanes ``[n_dev, 2]``."""
+    the iterations it ran and its live lanes ``[n_dev, 2]``. The step with no rungs around it (the lanes
+    unpacked, never compacted): :func:`kx.bench.sim.lockstep` times it."""
     local = functools.partial(_advance_local, policy=policy, config=config)
     if n_dev == 1:
         return local(state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at, table)
-    mesh = _mesh(n_dev)
-    lanes = jax.sharding.PartitionSpec("lanes")
-    rep = jax.sharding.PartitionSpec()
-    in_specs = (_lane_specs(state), _lane_specs(lane_params), lanes, lanes, rep, rep,
-                jax.tree.map(lambda _: rep, params), rep, rep, jax.tree.map(lambda _: rep, table))
-    out_specs = (_lane_specs(state), jax.sharding.PartitionSpec("lanes", None))
+    in_specs = (lanes.lane_specs((state, lane_params, noise_word, lane_id))
+                + lanes.replicated_specs((keys, group_size, params, chunk, stop_at, table)))
+    out_specs = (lanes.lane_specs(state), lanes.PER_DEVICE)
     # each device stops once its own live lanes fit its share of the narrower width
-    return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
+    return jax.shard_map(local, mesh=lanes.mesh(n_dev), in_specs=in_specs, out_specs=out_specs, check_vma=False)(
         state, lane_params, noise_word, lane_id, keys, group_size, params, chunk, stop_at // n_dev, table)
-
-
-def lockstep(policy: Policy, lane_params: Any, lanes: State, params: KeepAwayParams, config: KeepAwayConfig, *,
-             key: jax.Array, iterations: int):
-    """The step alone: ``iterations`` iterations of every lane of ``lanes`` (``[.., n]``, lane ``i`` trial
-    ``i`` of the kick noise of ``key``) in lockstep on every device, finished lanes stepped too (no
-    narrowing, no early return), with a per-lane policy's ``lane_params``. Returns the state and, per
-    device, the iterations it ran and its live lanes ``[n_dev, 2]``. ``python -m kx.bench sim`` times it
-    beside :func:`evaluate`."""
-    ids = jnp.arange(lanes.done.shape[-1], dtype=jnp.int32)
-    return _advance(lanes, lane_params, env.noise_words(key, ids), ids, key[None], np.int32(ids.shape[0]), params,
-                    np.int32(iterations), np.int32(-1), policy=policy, config=config, n_dev=jax.local_device_count())
 
 
 # The rungs of the ladder an evaluation steps through: from a width, the next is the widest one at most
@@ -209,101 +185,6 @@ def rungs(ladder: list[int]) -> list[int]:
         out.append(nxt[0])
 
 
-@dataclasses.dataclass(frozen=True)
-class _Layout:
-    """How a pytree of batch-last lane arrays lies in the rows of one int32 array ``[rows, lanes]``
-    (:func:`_pack`): the tree's structure and, per leaf, its shape without the lane axis and its dtype.
-    Static (hashable), so compiled calls take the lanes as one array.
-
-    One array rather than one per field because every argument and result of a compiled call costs
-    its own handling on every call: a rung of 25 lane arrays on 2 devices cost 0.36 ms more to call
-    than one of 5, measured in a loop that did nothing else, and an evaluation makes ten such calls."""
-
-    treedef: Any
-    leaves: tuple[tuple[tuple[int, ...], str], ...]
-
-    @staticmethod
-    def of(tree) -> "_Layout":
-        leaves, treedef = jax.tree.flatten(tree)
-        return _Layout(treedef, tuple((tuple(a.shape[:-1]), jnp.dtype(a.dtype).name) for a in leaves))
-
-    def n_rows(self, n_leaves: int | None = None) -> int:
-        """Rows of the first ``n_leaves`` leaves (default: all)."""
-        return sum(math.prod(shape) for shape, _ in self.leaves[:n_leaves])
-
-
-def _rows(a: jax.Array) -> jax.Array:
-    """One lane array ``[..., w]`` as int32 rows ``[-1, w]``, losslessly: 32-bit types reinterpreted,
-    booleans and narrower integers widened."""
-    a = a.reshape(-1, a.shape[-1])
-    dt = jnp.dtype(a.dtype)
-    if dt == jnp.int32:
-        return a
-    if dt.itemsize == 4:
-        return jax.lax.bitcast_convert_type(a, jnp.int32)
-    if dt == jnp.bool_ or (jnp.issubdtype(dt, jnp.integer) and dt.itemsize < 4):
-        return a.astype(jnp.int32)
-    raise TypeError(f"starts: the evaluator packs the state's arrays into int32 lanes; they must be 32-bit, boolean "
-                    f"or narrower integers, got {dt.name}")
-
-
-def _pack(tree) -> jax.Array:
-    """Every leaf of ``tree`` (batch-last, the same lane count) in one int32 array ``[rows, lanes]``,
-    leaf after leaf (:class:`_Layout`)."""
-    return jnp.concatenate([_rows(a) for a in jax.tree.leaves(tree)])
-
-
-def _unpack(rows: jax.Array, layout: _Layout):
-    """The tree :func:`_pack` packed into ``rows``."""
-    w, out, off = rows.shape[-1], [], 0
-    for shape, name in layout.leaves:
-        n, dt = math.prod(shape), jnp.dtype(name)
-        r = rows[off: off + n].reshape(shape + (w,))
-        off += n
-        if dt == jnp.bool_:
-            r = r != 0
-        elif dt.itemsize == 4 and dt != jnp.int32:
-            r = jax.lax.bitcast_convert_type(r, dt)
-        elif dt != jnp.int32:
-            r = r.astype(dt)
-        out.append(r)
-    return jax.tree.unflatten(layout.treedef, out)
-
-
-# What every rung reads besides its lanes, the params, the run groups' size and the groups' keys, travels
-# as one small int32 array (a float field and the keys' words by their bits): on 2 CPU devices one
-# replicated array cost 0.05 ms to put, the params and a key array apart 0.4 ms.
-_PARAM_FIELDS = tuple(f.name for f in dataclasses.fields(KeepAwayParams))
-_FLOAT_PARAMS = frozenset(f.name for f in dataclasses.fields(KeepAwayParams) if isinstance(f.default, float))
-
-
-def _scalars(params: KeepAwayParams, group_size: int, keys: jax.Array) -> np.ndarray:
-    vals = [np.float32(getattr(params, f)).view(np.int32) if f in _FLOAT_PARAMS else np.int32(getattr(params, f))
-            for f in _PARAM_FIELDS]
-    words = np.asarray(jax.random.key_data(keys)).view(np.int32).reshape(-1)
-    return np.concatenate([np.array(vals + [group_size], np.int32), words])
-
-
-def _from_scalars(scalars: jax.Array, n_groups: int, impl: str) -> tuple[KeepAwayParams, jax.Array, jax.Array]:
-    """The params, the run groups' size and their keys ``[n_groups]`` of :func:`_scalars`."""
-    n = len(_PARAM_FIELDS)
-    vals = {f: jax.lax.bitcast_convert_type(scalars[i], jnp.float32) if f in _FLOAT_PARAMS else scalars[i]
-            for i, f in enumerate(_PARAM_FIELDS)}
-    words = jax.lax.bitcast_convert_type(scalars[n + 1:], jnp.uint32).reshape(n_groups, -1)
-    return KeepAwayParams(**vals), scalars[n], jax.random.wrap_key_data(words, impl=impl)
-
-
-def _live_first(done: jax.Array, k: int) -> jax.Array:
-    """The first ``k`` lane indices when live lanes are put before finished ones, each in lane order:
-    ``argsort(done, stable=True)[:k]``, from prefix counts and one scatter (a sort cost 2-3x more)."""
-    n = done.shape[-1]
-    live = ~done
-    seen = jnp.cumsum(live, dtype=jnp.int32)  # live lanes up to and including each lane
-    i = jnp.arange(n, dtype=jnp.int32)
-    pos = jnp.where(live, seen - 1, seen[-1] + i - seen)  # finished lanes after all the live ones
-    return jnp.zeros(n, jnp.int32).at[pos].set(i, unique_indices=True)[:k]
-
-
 @functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "width", "layout", "n_groups", "impl"),
                    compiler_options=LOOP_COMPILER_OPTIONS)
 def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, config, n_dev, width, layout, n_groups,
@@ -313,61 +194,43 @@ def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, conf
     before finished ones (lanes never move between devices). Each device stops on its own count (a
     global one would need a collective every iteration, which measured slower). The lanes (state, a
     shared policy's row index, noise word, id) come and go packed in one array ``rows``
-    (:class:`_Layout`), a per-lane policy's parameters beside them as they are (``lane_params``, else
+    (:class:`kx.sim.lanes.Layout`), a per-lane policy's parameters beside them as they are (``lane_params``, else
     None: packed, NEAT's networks were copied once more per rung and its evaluation took 15% longer);
     ``scalars`` holds the params, the run groups' size and their ``n_groups`` keys of PRNG ``impl``
-    (:func:`_scalars`). Returns the compacted lanes and parameters (none for the last rung), the
+    (:func:`kx.sim.lanes.pack_scalars`). Returns the compacted lanes and parameters (none for the last rung), the
     counters of every lane before the compaction and its lane id, stacked ``[6, lanes]``
     (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the iterations run
     and the live lanes ``[n_dev, 2]``."""
-    n_state = len(jax.tree.leaves(jax.tree.unflatten(layout.treedef, [0] * len(layout.leaves))[0]))
-
     def local(rows, lane_params, scalars, table):
-        state, index, noise_word, lane_id = _unpack(rows, layout)
+        state, index, noise_word, lane_id = lanes.unpack(rows, layout)
         lane_params = index if policy.shared else lane_params
-        params, group_size, keys = _from_scalars(scalars, n_groups, impl)
+        params, group_size, keys = lanes.unpack_scalars(scalars, n_groups, impl)
         state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
                                          jnp.int32(width // n_dev), table, policy=policy, config=config)
         record = jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id])  # [6, lanes]: one transfer
         if not width:
             return record, progress
         # the state's rows anew, the rest (row index, noise word, id) as they came
-        order = _live_first(state.done, width // n_dev)
-        rows = jnp.take(jnp.concatenate([_pack(state), rows[layout.n_rows(n_state):]]), order, axis=-1)
+        order = lanes.live_first(state.done, width // n_dev)
+        rows = jnp.take(jnp.concatenate([lanes.pack(state), rows[layout.first_rows():]]), order, axis=-1)
         if policy.shared:
             return rows, None, record, progress
         return rows, jax.tree.map(lambda a: jnp.take(a, order, axis=-1), lane_params), record, progress
 
     if n_dev == 1:
         return local(rows, lane_params, scalars, table)
-    mesh = _mesh(n_dev)
-    lanes_spec, rep = jax.sharding.PartitionSpec(None, "lanes"), jax.sharding.PartitionSpec()
-    in_specs = (lanes_spec, _lane_specs(lane_params), rep, jax.tree.map(lambda _: rep, table))
-    out_specs = (lanes_spec, jax.sharding.PartitionSpec("lanes", None))
+    in_specs = lanes.lane_specs((rows, lane_params)) + lanes.replicated_specs((scalars, table))
+    out_specs = (lanes.lane_specs(rows), lanes.PER_DEVICE)
     if width:
-        out_specs = (lanes_spec, _lane_specs(lane_params)) + out_specs
-    return jax.shard_map(local, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_vma=False)(
+        out_specs = lanes.lane_specs((rows, lane_params)) + out_specs
+    return jax.shard_map(local, mesh=lanes.mesh(n_dev), in_specs=in_specs, out_specs=out_specs, check_vma=False)(
         rows, lane_params, scalars, table)
-
-
-def _lane_layout(starts, shared: bool) -> _Layout:
-    """The :class:`_Layout` of an evaluation's packed lanes ``(state, row index of a shared policy (else
-    None), noise word, lane id)``."""
-    leaves, treedef = jax.tree.flatten(starts)
-    return _layout_of(treedef, tuple((tuple(a.shape[:-1]), jnp.dtype(a.dtype).name) for a in leaves), shared)
-
-
-@functools.lru_cache(maxsize=256)
-def _layout_of(treedef, leaves, shared: bool) -> _Layout:
-    lane = jax.ShapeDtypeStruct((1,), jnp.int32)
-    state = jax.tree.unflatten(treedef, [jax.ShapeDtypeStruct(shape + (1,), dtype) for shape, dtype in leaves])
-    return _Layout.of((state, lane if shared else None, jax.ShapeDtypeStruct((1,), jnp.uint32), lane))
 
 
 @functools.partial(jax.jit, static_argnames=("shared", "n_groups", "n_pol", "n_trials", "width"))
 def _prepare(starts, policy_params, keys, *, shared, n_groups, n_pol, n_trials, width):
-    """The first rung's lanes, packed (:func:`_pack`, :func:`_lane_layout`), and a per-lane policy's
-    parameters for them (else None), in one compiled call (eagerly, the noise words
+    """The first rung's lanes, packed (:func:`kx.sim.lanes.pack`, :func:`kx.sim.lanes.lane_layout`), and a
+    per-lane policy's parameters for them (else None), in one compiled call (eagerly, the noise words
     and the gathers cost a fifth of an evaluation of 4500 short episodes): lane ``l`` plays run ``l //
     group_size``'s policy ``l // T`` on that run's trial ``l % T`` with the trial's kick-noise word; past
     ``n`` (padding to a multiple of the devices) lane ``l`` repeats lane ``l mod n``, the same episode
@@ -385,20 +248,9 @@ def _prepare(starts, policy_params, keys, *, shared, n_groups, n_pol, n_trials, 
     noise_word = jnp.take(words, trial_id)
     state = jax.tree.map(lambda a: jnp.take(a, trial_id, axis=-1), starts)
     if shared:  # lanes carry their row of the table; the table stays whole
-        return _pack((state, lane_id // n_trials, noise_word, lane_id)), None
+        return lanes.pack((state, lane_id // n_trials, noise_word, lane_id)), None
     lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1), policy_params)
-    return _pack((state, None, noise_word, lane_id)), lane_params
-
-
-def _onto_mesh(tree, n_dev: int):
-    """``tree`` with every leaf committed to devices other than the first ``n_dev`` (a restored
-    checkpoint's, say) copied onto them, replicated, so that one compiled call can take them all."""
-    if n_dev == 1:
-        return tree
-    devices = set(jax.devices()[:n_dev])
-    rep = jax.sharding.NamedSharding(_mesh(n_dev), jax.sharding.PartitionSpec())
-    return jax.tree.map(lambda a: jax.device_put(a, rep) if isinstance(a, jax.Array) and a.committed
-                        and a.sharding.device_set != devices else a, tree)
+    return lanes.pack((state, None, noise_word, lane_id)), lane_params
 
 
 @jax.jit
@@ -464,27 +316,25 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     n = n_groups * group_size
     n_dev = min(devices or jax.local_device_count(), jax.local_device_count())
     ladder = width_ladder(n, multiple=n_dev)
-    starts, policy_params, keys = _onto_mesh((starts, policy_params, keys), n_dev)
+    starts, policy_params, keys = lanes.onto_mesh((starts, policy_params, keys), n_dev)
     rows, lane_params = _prepare(starts, None if policy.shared else policy_params, keys, shared=policy.shared,
                                  n_groups=n_groups, n_pol=n_pol, n_trials=n_trials, width=ladder[0])
-    if n_dev > 1:  # split the lanes once; in any other layout every sharded call would reshard them
-        rows, lane_params = jax.device_put((rows, lane_params), jax.tree.map(
-            lambda sp: jax.sharding.NamedSharding(_mesh(n_dev), sp), _lane_specs((rows, lane_params))))
-    layout = _lane_layout(starts, policy.shared)
+    # split the lanes once; in any other layout every sharded call would reshard them
+    rows, lane_params = lanes.put_lanes((rows, lane_params), n_dev)
+    layout = lanes.lane_layout(starts, policy.shared)
     # what every rung reads besides its lanes (a shared table whole, replicated), on the devices once
     # rather than sent with every rung
-    table, scalars = jax.device_put(
-        (policy_params if policy.shared else None, _scalars(params, group_size, keys)),
-        jax.sharding.NamedSharding(_mesh(n_dev), jax.sharding.PartitionSpec()) if n_dev > 1 else None)
+    table, scalars = lanes.put_replicated(
+        (policy_params if policy.shared else None, lanes.pack_scalars(params, group_size, keys)), n_dev)
     # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
     # (a few integers per lane) once, at the end, in one transfer.
     chain, impl = rungs(ladder), str(jax.random.key_impl(keys))
     records, progress = [], []
     for k in range(len(chain)):
         nxt = chain[k + 1] if k + 1 < len(chain) else 0
-        *lanes, record, ran = _advance_and_compact(rows, lane_params, scalars, table, policy=policy, config=config,
+        *compacted, record, ran = _advance_and_compact(rows, lane_params, scalars, table, policy=policy, config=config,
                                                    n_dev=n_dev, width=nxt, layout=layout, n_groups=n_groups, impl=impl)
-        rows, lane_params = lanes if lanes else (None, None)
+        rows, lane_params = compacted if compacted else (None, None)
         records.append(record)
         progress.append(ran)
     packed, progress = (np.asarray(a) for a in _stacked(records, progress))
