@@ -111,14 +111,14 @@ def hidden_rows(n_used: int, capacity: int) -> int:
 
 
 def trim(net: Network, rows: int, config: NEATConfig) -> Network:
-    """``net`` (batch-first: any leading axes, as :func:`build` vmapped gives them) with only its first
-    ``rows`` hidden rows: the output rows kept, the hidden columns past ``rows`` dropped. A genome keeps
-    its hidden nodes in a prefix of its slots (:func:`kx.neat.genome.n_hidden` of them), so when no genome has more than ``rows`` hidden nodes,
-    the dropped rows are empty slots: their weights are zero and :func:`forward` of the trimmed
-    network gives the same hidden values and the same output sums (each dropped term is ``0 * h``, a
-    zero, so the sums are equal, at most one of them ``+0.0`` where the other is ``-0.0``, which compare
-    equal: the decisions are the same). The evaluator's cost per step falls with the rows
-    (``python -m kx.bench policies``)."""
+    """``net`` (batch-first: any leading axes, as :func:`build` vmapped gives them) with only its first ``rows``
+    hidden rows: the output rows kept, the hidden columns past ``rows`` dropped. A genome keeps its hidden nodes
+    in a prefix of its slots (:func:`kx.neat.genome.n_hidden` of them), so when no genome has more than ``rows``
+    hidden nodes, the dropped rows are empty slots: their weights are zero and :func:`forward` of the trimmed
+    network gives the same hidden values and the same output sums (each dropped term is ``0 * h``, a zero, so
+    the sums are equal, at most one of them ``+0.0`` where the other is ``-0.0``, which compare equal: the
+    decisions are the same). The evaluator's cost per step falls with the rows (``python -m kx.bench
+    policies``)."""
     h = config.n_hidden
     if rows == h:
         return net
