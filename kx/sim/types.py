@@ -2,7 +2,8 @@
 
 The split follows gymnax/jumanji: :class:`KeepAwayConfig` fixes every shape (team sizes, field size,
 speeds, which unroll loops) and is a hashable static argument; :class:`KeepAwayParams` holds values that
-set no shape and can be traced or vmapped; :class:`State` is the episode state as a pytree.
+set no shape, traced inside the compiled step (the evaluator takes them from the host: see the class);
+:class:`State` is the episode state as a pytree.
 
 Every array of the state is *batch-last*: a per-agent field has shape ``[n, *batch]`` and a per-episode
 field ``[*batch]``. A single episode has ``batch == ()``. All rule code is written against this
@@ -121,7 +122,16 @@ def validate_config(c: KeepAwayConfig) -> None:
 
 @struct.dataclass
 class KeepAwayParams:
-    """Values that set no shape (traced; a sweep can vmap over them).
+    """Values that set no shape: the rules (:func:`kx.sim.env.reset`, :func:`kx.sim.env.transition`) read
+    them as traced values: a compiled function that takes them as an argument is not recompiled for new values.
+
+    :func:`kx.sim.evaluate.evaluate` takes them as host values: it validates them and packs them, each field
+    by its declared type (``int`` as an int32, ``float`` as a float32's bits; :func:`kx.sim.lanes.scalar_fields`,
+    which refuses any other type), into the small int32 array its compiled calls read. They must therefore
+    be concrete there (not traced, not batched: ``evaluate`` cannot be vmapped over them), and one
+    evaluation plays one set of values; a sweep evaluates each value in its own call, reusing the same
+    compiled calls. A new field must be declared ``int`` or ``float`` (``| jax.Array`` allowed), whatever
+    its default.
 
     Attributes:
       max_iterations: iterations per trial (the paper: 4500).
