@@ -152,6 +152,7 @@ def main_group(args, overrides) -> int:
     from kx.evolve import config as cfg_lib
     from kx.evolve import group as group_lib
     from kx.evolve import run as run_lib
+    from kx.evolve import trainer as trainer_lib
     from kx.evolve.errors import ConfigError, RunError
 
     try:
@@ -164,7 +165,7 @@ def main_group(args, overrides) -> int:
         cfgs = group_configs(cfg, seeds)
         for c in cfgs:
             cfg_lib.validate(c)
-        group_lib.check_group(cfgs)
+        trainer_lib.check_group(cfgs)
         workdir = workdir_of(args, f"seeds{seeds[0]}-{seeds[-1]}")
         dirs = [workdir / f"seed{s}" for s in seeds]
         for d in dirs:

@@ -22,6 +22,7 @@ from kx.evolve import config as cfg_lib
 from kx.evolve import group as group_lib
 from kx.evolve import outputs
 from kx.evolve import run as run_lib
+from kx.evolve import trainer as trainer_lib
 from kx.evolve.errors import ConfigError
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -114,7 +115,7 @@ def test_a_group_refuses_configs_that_differ_beyond_the_seed_before_any_compute(
     with pytest.raises(ConfigError, match=r"^trials: the runs of a batched group share every config field but seed"):
         group_lib.train_group([a, b], [tmp_path / "a", tmp_path / "b"], log=_quiet)
     with pytest.raises(ConfigError, match=r"seeds: each run of a group needs its own seed; \[0\] repeated"):
-        group_lib.check_group([a, _cfg("neat", 0)])
+        trainer_lib.check_group([a, _cfg("neat", 0)])
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "config.json").write_text("{}")
@@ -130,7 +131,7 @@ def test_a_group_of_ten_builds_substrates_and_scores_novelty_as_its_runs_alone()
     from kx.evolve import streams
 
     cfgs = [cfg_lib.load(REPO / "configs" / "hyperneat_3v2.py", [f"seed={s}", "objective=hybrid"]) for s in range(10)]
-    group = group_lib.RunGroup.from_configs(cfgs)
+    group = trainer_lib.RunGroup.from_configs(cfgs)
     state = group.init()
     population, _ = group._ask(jax.vmap(lambda k: streams.learner_ask(k, 0))(state.key), state.learner)
     tables = group._policy_params(population)
@@ -143,23 +144,27 @@ def test_a_group_of_ten_builds_substrates_and_scores_novelty_as_its_runs_alone()
         pop = jax.tree.map(lambda a: a[r], population)
         for x, y in zip(jax.tree.leaves(tables), jax.tree.leaves(trainer.encoding.policy_params(pop)), strict=True):
             np.testing.assert_array_equal(np.asarray(x[r]), np.asarray(y))
-        s1, a1, _ = trainer.objective.score(fitness[r], behaviour[r], group_lib.run_state(state, r).objective)
+        s1, a1, _ = trainer.objective.score(fitness[r], behaviour[r], trainer_lib.run_state(state, r).objective)
         alone.append(trainer.objective.score(fitness[9 - r], behaviour[9 - r], a1)[0])
     np.testing.assert_array_equal(np.asarray(score), np.stack([np.asarray(a) for a in alone]))
 
 
 @pytest.mark.parametrize("shape", [(10, 50, 30), (3, 50, 30), (16, 150, 30)])
 def test_a_groups_means_over_trials_are_those_of_each_run_alone(shape):
-    """Bit for bit what the run loop computes on one run's [P, T] (a mean over the last axis of the whole
-    [R, P, T] differs in the last bit at 50 x 30, CMA-ES's shape: the protocol's CMA-ES runs drifted)."""
+    """Each run's means over its trials in a group of R are those of the same run's [1, P, T] alone, the
+    group of one that a run alone steps (a mean over the last axis of the whole [R, P, T] differs in the
+    last bit at 50 x 30, CMA-ES's shape: the protocol's CMA-ES runs drifted)."""
     k = jax.random.split(jax.random.key(sum(shape)), 2)
     fitness = jax.random.uniform(k[0], shape) * jax.random.uniform(k[1], shape)
     behaviour = jax.random.uniform(k[1], (3, *shape))
     stats = types.SimpleNamespace(fitness=fitness, behaviour=behaviour)  # the two fields it reads
-    f, b = group_lib.trial_means(stats)
+    f, b = trainer_lib.trial_means(stats)
+    whole = np.asarray(fitness).mean(axis=2, dtype=np.float32)  # a different summation: not bit for bit
+    assert np.allclose(np.asarray(f), whole, rtol=1e-6)
     for r in range(shape[0]):
-        np.testing.assert_array_equal(np.asarray(f[r]), np.asarray(fitness[r].mean(axis=1)))
-        np.testing.assert_array_equal(np.asarray(b[r]), np.asarray(behaviour[:, r].mean(axis=2)))
+        one = trainer_lib.trial_means(types.SimpleNamespace(fitness=fitness[r:r + 1], behaviour=behaviour[:, r:r + 1]))
+        np.testing.assert_array_equal(np.asarray(f[r]), np.asarray(one[0][0]))
+        np.testing.assert_array_equal(np.asarray(b[r]), np.asarray(one[1][0]))
 
 
 @pytest.mark.parametrize("text, seeds", [("0-3", [0, 1, 2, 3]), ("5", [5]), ("0-1,7", [0, 1, 7])])
@@ -182,7 +187,7 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
     # test_run_loop.py's shapes for NEAT: the runs alone reuse what its recompile test compiled
     cfgs = [_cfg("neat", s, "generations=5", "trials=2", "validation_trials=4", "sim.max_iterations=60")
             for s in SEEDS]
-    group = group_lib.RunGroup.from_configs(cfgs)
+    group = trainer_lib.RunGroup.from_configs(cfgs)
     state, compiles = _compiles_during(group.init)
     per_generation, rows = [compiles], []
     for _ in range(5):
@@ -200,7 +205,7 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
             result = trainer.step(alone)
             alone = result.state
             assert strip(result.row) == strip(rows[g][r]), (c.seed, g)
-        for x, y in zip(jax.tree.leaves(alone), jax.tree.leaves(group_lib.run_state(state, r)), strict=True):
+        for x, y in zip(jax.tree.leaves(alone), jax.tree.leaves(trainer_lib.run_state(state, r)), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
@@ -209,17 +214,17 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
     run a call at the paper's sizes); forced here at test sizes, every row and run state is still each
     run's alone."""
     cfgs = [_cfg("hyperneat", s, "generations=1") for s in SEEDS]
-    group = group_lib.RunGroup.from_configs(cfgs)
-    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 1)
+    group = trainer_lib.RunGroup.from_configs(cfgs)
+    monkeypatch.setattr(trainer_lib, "CPU_TABLE_BYTES", 1)
     state = group.init()
-    population, _ = group._ask(jax.vmap(lambda k: group_lib.streams.learner_ask(k, 0))(state.key), state.learner)
+    population, _ = group._ask(jax.vmap(lambda k: trainer_lib.streams.learner_ask(k, 0))(state.key), state.learner)
     assert group.runs_per_call(group._policy_params(population)) == 1
-    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 2**40)
+    monkeypatch.setattr(trainer_lib, "CPU_TABLE_BYTES", 2**40)
     assert group.runs_per_call(group._policy_params(population)) == len(SEEDS)
-    monkeypatch.setattr(group_lib, "CPU_TABLE_BYTES", 1)
+    monkeypatch.setattr(trainer_lib, "CPU_TABLE_BYTES", 1)
     calls = []
-    evaluate = group_lib.ev.evaluate
-    monkeypatch.setattr(group_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
+    evaluate = trainer_lib.ev.evaluate
+    monkeypatch.setattr(trainer_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
     state, rows = group.step(state)
     assert calls == [(1,)] * 6  # the 3 runs' episodes, one run a call, then their validation
     strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
@@ -227,7 +232,7 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
         trainer = run_lib.Trainer(c)
         result = trainer.step(trainer.init())
         assert strip(result.row) == strip(rows[r]), c.seed
-        for x, y in zip(jax.tree.leaves(result.state), jax.tree.leaves(group_lib.run_state(state, r)), strict=True):
+        for x, y in zip(jax.tree.leaves(result.state), jax.tree.leaves(trainer_lib.run_state(state, r)), strict=True):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 

@@ -39,9 +39,9 @@ def run(args) -> None:
     import jax
 
     from kx.evolve import config as cfg_lib
-    from kx.evolve import group as group_lib
     from kx.evolve import outputs
     from kx.evolve import run as run_lib
+    from kx.evolve import trainer as trainer_lib
 
     sizes = sorted({int(r) for r in args.group_sizes.split(",")})
     clock = _CompileClock()
@@ -74,11 +74,11 @@ def run(args) -> None:
     results = []
     for r in sizes:
         compiled0 = clock.seconds
-        warm_group = group_lib.RunGroup.from_configs([other(warm_seed + 1 + i, 1) for i in range(r)])
+        warm_group = trainer_lib.RunGroup.from_configs([other(warm_seed + 1 + i, 1) for i in range(r)])
         warm_group.step(warm_group.init())
         warm_compile = clock.seconds - compiled0
         compiled0, t0 = clock.seconds, time.perf_counter()
-        group = group_lib.RunGroup.from_configs(cfgs[:r])
+        group = trainer_lib.RunGroup.from_configs(cfgs[:r])
         state, rows = group.init(), []
         for _ in range(args.generations):
             state, got = group.step(state)

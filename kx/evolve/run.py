@@ -9,7 +9,9 @@ meets the same ones) and then::
     score, objective_state = objective.score(fitness, behaviour, objective_state)   # kx.evolve.objective
     learner = encoding.tell(key_tell, population, score, fitness, learner)
 
-The loop knows only the encoding interface (NEAT, CMA-ES and any registered encoding run through the
+The generation step is :meth:`kx.evolve.trainer.Trainer.step`, the step of a group of one run
+(:class:`kx.evolve.trainer.RunGroup`: the one generation step, for a run alone and for batched runs). The
+loop knows only the encoding interface (NEAT, CMA-ES and any registered encoding run through the
 same code) and the objective interface (what the learner selects on). Raw task fitness drives
 everything reported: the validated champion, the best checkpoint, metrics.csv, the progress line and
 the plots. Every key comes from :mod:`kx.evolve.streams`, so a run resumed from the checkpoint after
@@ -52,9 +54,7 @@ import time
 from typing import Callable
 
 import jax
-import jax.numpy as jnp
 import ml_collections
-import numpy as np
 
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
@@ -62,9 +62,9 @@ from kx.evolve import outputs, streams, transfer
 from kx.evolve.checkpoint import RunLock, RunState
 from kx.evolve.encoding import stack
 from kx.evolve.errors import RunError
+from kx.evolve.trainer import GenerationResult, Trainer
 from kx.sim import env
 from kx.sim import evaluate as ev
-from kx.sim.policies import BASELINES
 
 PLOT_EVERY_S = 10.0  # the shortest interval between two drawings of progress.png during a run
 
@@ -72,166 +72,6 @@ __all__ = ["RunError", "RunLock", "RunState", "Trainer", "GenerationResult", "ev
            "prepare_run_dir", "restore"]
 
 
-@dataclasses.dataclass
-class GenerationResult:
-    row: dict
-    state: RunState
-
-
-class Trainer:
-    """The objects of one experiment and its generation step (no files; :func:`train` adds them)."""
-
-    def __init__(self, cfg: ml_collections.ConfigDict):
-        self.cfg = cfg
-        self.exp = cfg_lib.validate(cfg)
-        self.encoding = self.exp.encoding
-        self.objective = self.exp.objective
-        self.fields = outputs.csv_fields(self.encoding, self.objective)
-        keys = streams.validation(cfg.seed)
-        self.validation_eval_key = keys.eval
-        self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
-        self.source = None  # the transfer source, once attach_source has restored it
-
-    def evaluate(self, population, starts, key, counters=None):
-        """Every individual of ``population`` on ``starts`` (:class:`~kx.sim.types.EpisodeStats` [P, T])."""
-        return ev.evaluate(self.encoding.policy, self.encoding.policy_params(population), starts,
-                           self.exp.sim_params, self.exp.sim, key=key, counters=counters)
-
-    def validate(self, genotype) -> float:
-        """Mean fitness of one genotype on the validation states."""
-        stats = self.evaluate(stack([genotype]), self.validation_starts, self.validation_eval_key)
-        return float(stats.fitness.mean())
-
-    def validation_baselines(self) -> dict:
-        """The hand-coded policies' mean fitness on the validation states."""
-        out = {}
-        for name, make in BASELINES.items():
-            stats = ev.evaluate(make(self.exp.sim), None, self.validation_starts, self.exp.sim_params, self.exp.sim,
-                                key=self.validation_eval_key)
-            out[name] = float(stats.fitness.mean())
-        return out
-
-    @property
-    def transfers(self) -> bool:
-        """Whether the run is seeded from another run's checkpoint (``transfer.source``)."""
-        return bool(self.cfg.transfer.source)
-
-    def attach_source(self, pinned: dict | None = None):
-        """Restores and checks the transfer source (:func:`kx.evolve.transfer.load`; ``ConfigError``
-        with the reason if it cannot seed this run). Returns it, or ``None`` with no transfer.
-        ``pinned``: a resumed run's record of its source, which names the source instead of
-        ``transfer.source`` and ``transfer.step`` (``RunError`` if the source no longer matches it)."""
-        if self.transfers and self.source is None:
-            self.source = transfer.load(self.cfg, self, pinned, make_trainer=Trainer)
-        return self.source
-
-    def init(self) -> RunState:
-        """The run state before generation 0: a fresh learner, or one seeded from the transfer source."""
-        if not self.transfers:
-            return self._init()
-        learner = transfer.seed(self, self.attach_source(), streams.transfer(self.cfg.seed))
-        return self._init(learner)
-
-    def _init(self, learner=None) -> RunState:
-        seed = self.cfg.seed
-        if learner is None:
-            learner = self.encoding.init(streams.learner_init(seed))
-        population, _ = self.encoding.ask(streams.learner_ask(seed, 0), learner)
-        return RunState(learner=learner, objective=self.objective.init(self.cfg.population_size),
-                        champion=self.encoding.individual(population, 0),  # a placeholder until generation 1
-                        champion_validation=jnp.asarray(-jnp.inf, jnp.float32),
-                        champion_generation=jnp.asarray(-1, jnp.int32), generation=jnp.asarray(0, jnp.int32),
-                        best_so_far=jnp.asarray(-jnp.inf, jnp.float32), key=streams.run_key(seed))
-
-    def check(self, state: RunState) -> list[str]:
-        """The encoding's invariants of a restored run state."""
-        champion = state.champion if int(state.champion_generation) >= 0 else None
-        return self.encoding.check(state.learner, champion)
-
-    def key_problem(self, state: RunState) -> str | None:
-        """What is wrong with a restored state's run key (``None``: it is this config's seed's)."""
-        want = np.asarray(streams.run_key(self.cfg.seed))
-        if not np.array_equal(np.asarray(state.key), want):
-            return f"its run key is {np.asarray(state.key).tolist()}, seed {self.cfg.seed}'s is {want.tolist()}"
-        return None
-
-    def restore(self, run_dir, step: int | None = None):
-        """``(step, state, meta)`` of a checkpoint of ``run_dir`` written with this config's method and shapes."""
-        return ckpt.restore(run_dir, jax.eval_shape(self._init), self.cfg.method, step, check=self.check)
-
-    def step(self, state: RunState) -> GenerationResult:
-        """Evaluate generation ``state.generation``'s population, validate its champion, breed the next one."""
-        enc, seed, g = self.encoding, state.key, int(state.generation)
-        keys = streams.training(seed, g)
-        t0 = time.perf_counter()
-        population, learner = enc.ask(streams.learner_ask(seed, g), state.learner)
-        starts = env.reset_batch(keys.starts, self.cfg.trials, self.exp.sim_params, self.exp.sim)
-        counters = ev.EvalCounters()
-        stats = self.evaluate(population, starts, keys.eval, counters)
-        fitness = stats.fitness.mean(axis=1)
-        behaviour = stats.behaviour.mean(axis=2)  # [3, P]: passes, dispersion, ball centre
-        score, objective, obj_metrics = self.objective.score(fitness, behaviour, state.objective)
-        jax.block_until_ready((fitness, score))
-        t1 = time.perf_counter()
-        learner, m = enc.tell(streams.learner_step(seed, g), population, score, fitness, learner)
-        jax.block_until_ready(learner)
-        t2 = time.perf_counter()
-        f = np.asarray(fitness)
-        champ = int(np.argmax(f))  # the first of equals
-        champ_genotype = enc.individual(population, champ)
-        validation = self.validate(champ_genotype)
-        state = advance(state, g, float(f[champ]), champ_genotype, validation, learner, objective)
-        t3 = time.perf_counter()
-        row = generation_row(g, f, np.asarray(score), np.asarray(behaviour), champ, validation, state,
-                             {k: m[k] for k in enc.metric_fields}, obj_metrics)
-        row.update(live_fraction=counters.live_steps / max(counters.executed_steps, 1),
-                   live_steps=counters.live_steps, eval_seconds=t1 - t0, evolve_seconds=t2 - t1,
-                   validation_seconds=t3 - t2, generation_seconds=t3 - t0)
-        return GenerationResult(row=row, state=state)
-
-
-EXECUTION_FIELDS = outputs.EXECUTION_FIELDS
-
-
-def advance(state: RunState, g: int, best: float, champ_genotype, validation: float, learner,
-            objective) -> RunState:
-    """The run state after generation ``g``: its learner and objective state, the best training fitness
-    so far, and the validated champion (this generation's champion if its validation score ``validation``
-    beats the run's, strictly: the earliest champion wins ties)."""
-    state = state.replace(learner=learner, objective=objective, generation=jnp.asarray(g + 1, jnp.int32),
-                          best_so_far=jnp.maximum(state.best_so_far, jnp.float32(best)))
-    if validation > float(state.champion_validation):
-        state = state.replace(champion=champ_genotype, champion_validation=jnp.asarray(validation, jnp.float32),
-                              champion_generation=jnp.asarray(g, jnp.int32))
-    return state
-
-
-def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ: int, validation: float,
-                   state: RunState, enc_metrics: dict, obj_metrics: dict) -> dict:
-    """Generation ``g``'s metrics row but its execution figures (:data:`EXECUTION_FIELDS` and
-    ``live_steps``): training fitness ``f [P]``, selection score ``s [P]``, behaviour ``beh [3, P]``, the
-    generation champion ``champ`` and its ``validation`` score, the run ``state`` after the generation,
-    the encoding's and the objective's metrics."""
-    row = {
-        "generation": g, "best_fitness": float(f[champ]),
-        # float32 rounding can put the mean of equal values a hair above them: clip to where it lies
-        "mean_fitness": float(np.clip(f.mean(), f.min(), f.max())), "median_fitness": float(np.median(f)),
-        "best_so_far": float(state.best_so_far), "best_score": float(s.max()), "mean_score": float(s.mean()),
-        "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
-        "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
-        "champion_validation": validation, "best_validation": float(state.champion_validation),
-        "best_validation_generation": int(state.champion_generation),
-    }
-    for k, v in enc_metrics.items():
-        row[k] = _scalar(v)
-    for k, v in obj_metrics.items():
-        row[k] = _scalar(v)
-    return row
-
-
-def _scalar(v):
-    a = np.asarray(v)
-    return int(a) if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else float(a)
 
 
 def evolve_in_memory(trainer: Trainer, log: Callable[[dict], None] | None = None) -> tuple[RunState, list[dict]]:

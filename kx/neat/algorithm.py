@@ -21,6 +21,8 @@ it compiles once and vmaps over seeds.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -168,7 +170,7 @@ def policy_networks(population: Genome, rows: int, config: NEATConfig) -> Networ
     """The networks of genomes with any leading axes (a population ``[P]``, a group's ``[R, P]``), with
     ``rows`` hidden rows (:func:`kx.neat.network.trim`)."""
     lead = population.node_kind.shape[:-1]
-    flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[len(lead):]), population)
+    flat = jax.tree.map(lambda a: a.reshape((int(np.prod(lead)),) + a.shape[len(lead):]), population)
     nets = trim(build_networks(flat, config), rows, config)
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), nets)
 
@@ -325,7 +327,17 @@ def validate(config: NEATConfig, params: NEATParams) -> None:
 _init_jit = jax.jit(init, static_argnames=("config",))
 _tell_jit = jax.jit(tell, static_argnames=("config",))
 _build_jit = jax.jit(build_networks, static_argnames=("config",))
-_policy_networks_jit = jax.jit(policy_networks, static_argnames=("rows", "config"))
+
+
+@functools.lru_cache(maxsize=None)
+def _policy_networks_jit(rows: int):
+    """:func:`policy_networks` with ``rows`` hidden rows, compiled per config: one program per row count,
+    named for it (a compilation log tells them apart; they are different programs, not recompilations)."""
+    def fn(population, config):
+        return policy_networks(population, rows, config)
+
+    fn.__name__ = fn.__qualname__ = f"policy_networks_{rows}_hidden_rows"
+    return jax.jit(fn, static_argnames=("config",))
 _init_from_jit = jax.jit(init_from, static_argnames=("config",))
 _seed_copies_jit = jax.jit(seed_copies, static_argnames=("config",))
 
@@ -375,7 +387,7 @@ class NEAT:
         kinds = np.asarray(population.node_kind)
         used = int((kinds == HIDDEN).sum(axis=-1).max()) if kinds.size else 0
         rows = hidden_rows(used, self.config.n_hidden)
-        return _policy_networks_jit(population, rows=rows, config=self.config)
+        return _policy_networks_jit(rows)(population, config=self.config)
 
     def init_from(self, population: Genome, next_node_id, next_innov, threshold=None,
                   params: NEATParams | None = None) -> NEATState:

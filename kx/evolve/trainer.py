@@ -1,0 +1,378 @@
+"""The objects of a run and its generation step, the one there is: R runs of one config, R >= 1.
+
+A :class:`Trainer` holds one run's objects (its validated config, encoding and objective, validation
+states and transfer source); no files. A :class:`RunGroup` holds R trainers whose configs are equal but for
+:data:`VARYING` (the seed, and a transferred run's source). Their run states are one pytree with a leading
+run axis (each carries its run key, ``RunState.key``, from which every one of its random streams derives),
+and a generation of all R is::
+
+    population, learner = over_runs(encoding.ask)(keys_ask, state.learner)               # [R, P, ...]
+    stats   = evaluate(policy, params(population) [R*P], starts [.., R*T], keys [R])  # [R, P, T]
+    fitness, behaviour = trial_means(stats)                                           # each run's own slice
+    score, objective = over_runs(objective.score)(fitness [R, P], behaviour [R, 3, P], state.objective)
+    learner = over_runs(encoding.tell)(keys_tell, population, score, fitness, learner)
+    validation = evaluate(policy, params(champions) [R], validation starts [.., R*Tv], keys [R])
+
+then the champion bookkeeping and one metrics row per run (:func:`generation_row`). A run alone is a group
+of one (:meth:`Trainer.step`): ``kx.train``, ``kx.train --seeds``, the protocol and the sweeps all step
+through :meth:`RunGroup.step`. The evaluator (:func:`kx.sim.evaluate.evaluate` with R keys) plays every
+run's policies on that run's own start states with that run's own noise; the lanes of different runs never
+interact. So each run of a group computes, bit for bit, what it computes alone: the same fitness,
+champions, checkpoints and metrics rows, but for the figures of how the generation was executed
+(:data:`kx.evolve.outputs.EXECUTION_FIELDS`: the timings, and the live share of the lane-steps, which
+depends on the whole batch). The tests check it for every method, the novelty hybrid and transfer.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+
+from kx.evolve import checkpoint as ckpt
+from kx.evolve import config as cfg_lib
+from kx.evolve import outputs, streams, transfer
+from kx.evolve.checkpoint import RunState
+from kx.evolve.encoding import stack
+from kx.evolve.errors import ConfigError, RunError
+from kx.sim import env
+from kx.sim import evaluate as ev
+from kx.sim.policies import BASELINES
+
+__all__ = ["Trainer", "RunGroup", "GenerationResult", "generation_row", "check_group", "over_runs",
+           "stack_states", "run_state", "trial_means", "VARYING", "CPU_TABLE_BYTES"]
+
+
+@dataclasses.dataclass
+class GenerationResult:
+    row: dict
+    state: RunState
+
+
+class Trainer:
+    """The objects of one experiment and its generation step (no files; :func:`train` adds them)."""
+
+    def __init__(self, cfg: ml_collections.ConfigDict):
+        self.cfg = cfg
+        self.exp = cfg_lib.validate(cfg)
+        self.encoding = self.exp.encoding
+        self.objective = self.exp.objective
+        self.fields = outputs.csv_fields(self.encoding, self.objective)
+        keys = streams.validation(cfg.seed)
+        self.validation_eval_key = keys.eval
+        self.validation_starts = env.reset_batch(keys.starts, cfg.validation_trials, self.exp.sim_params, self.exp.sim)
+        self.source = None  # the transfer source, once attach_source has restored it
+        self._alone = None  # the group of this run alone, whose step is this run's (built on first use)
+
+    def evaluate(self, population, starts, key, counters=None):
+        """Every individual of ``population`` on ``starts`` (:class:`~kx.sim.types.EpisodeStats` [P, T])."""
+        return ev.evaluate(self.encoding.policy, self.encoding.policy_params(population), starts,
+                           self.exp.sim_params, self.exp.sim, key=key, counters=counters)
+
+    def validate(self, genotype) -> float:
+        """Mean fitness of one genotype on the validation states."""
+        stats = self.evaluate(stack([genotype]), self.validation_starts, self.validation_eval_key)
+        return float(stats.fitness.mean())
+
+    def validation_baselines(self) -> dict:
+        """The hand-coded policies' mean fitness on the validation states."""
+        out = {}
+        for name, make in BASELINES.items():
+            stats = ev.evaluate(make(self.exp.sim), None, self.validation_starts, self.exp.sim_params, self.exp.sim,
+                                key=self.validation_eval_key)
+            out[name] = float(stats.fitness.mean())
+        return out
+
+    @property
+    def transfers(self) -> bool:
+        """Whether the run is seeded from another run's checkpoint (``transfer.source``)."""
+        return bool(self.cfg.transfer.source)
+
+    def attach_source(self, pinned: dict | None = None):
+        """Restores and checks the transfer source (:func:`kx.evolve.transfer.load`; ``ConfigError``
+        with the reason if it cannot seed this run). Returns it, or ``None`` with no transfer.
+        ``pinned``: a resumed run's record of its source, which names the source instead of
+        ``transfer.source`` and ``transfer.step`` (``RunError`` if the source no longer matches it)."""
+        if self.transfers and self.source is None:
+            self.source = transfer.load(self.cfg, self, pinned, make_trainer=Trainer)
+        return self.source
+
+    def init(self) -> RunState:
+        """The run state before generation 0: a fresh learner, or one seeded from the transfer source."""
+        if not self.transfers:
+            return self._init()
+        learner = transfer.seed(self, self.attach_source(), streams.transfer(self.cfg.seed))
+        return self._init(learner)
+
+    def _init(self, learner=None) -> RunState:
+        seed = self.cfg.seed
+        if learner is None:
+            learner = self.encoding.init(streams.learner_init(seed))
+        population, _ = self.encoding.ask(streams.learner_ask(seed, 0), learner)
+        return RunState(learner=learner, objective=self.objective.init(self.cfg.population_size),
+                        champion=self.encoding.individual(population, 0),  # a placeholder until generation 1
+                        champion_validation=jnp.asarray(-jnp.inf, jnp.float32),
+                        champion_generation=jnp.asarray(-1, jnp.int32), generation=jnp.asarray(0, jnp.int32),
+                        best_so_far=jnp.asarray(-jnp.inf, jnp.float32), key=streams.run_key(seed))
+
+    def check(self, state: RunState) -> list[str]:
+        """The encoding's invariants of a restored run state."""
+        champion = state.champion if int(state.champion_generation) >= 0 else None
+        return self.encoding.check(state.learner, champion)
+
+    def key_problem(self, state: RunState) -> str | None:
+        """What is wrong with a restored state's run key (``None``: it is this config's seed's)."""
+        want = np.asarray(streams.run_key(self.cfg.seed))
+        if not np.array_equal(np.asarray(state.key), want):
+            return f"its run key is {np.asarray(state.key).tolist()}, seed {self.cfg.seed}'s is {want.tolist()}"
+        return None
+
+    def restore(self, run_dir, step: int | None = None):
+        """``(step, state, meta)`` of a checkpoint of ``run_dir`` written with this config's method and shapes."""
+        return ckpt.restore(run_dir, jax.eval_shape(self._init), self.cfg.method, step, check=self.check)
+
+    def step(self, state: RunState) -> GenerationResult:
+        """Evaluate generation ``state.generation``'s population, validate its champion, breed the next
+        one: the generation step of a group of one run (:meth:`RunGroup.step`), the only one there is."""
+        if self._alone is None:
+            self._alone = RunGroup([self])
+        stacked, rows = self._alone.step(stack_states([state]))
+        return GenerationResult(row=rows[0], state=run_state(stacked, 0))
+
+def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ: int, validation: float,
+                   state: RunState, enc_metrics: dict, obj_metrics: dict) -> dict:
+    """Generation ``g``'s metrics row but its execution figures (:data:`kx.evolve.outputs.EXECUTION_FIELDS` and
+    ``live_steps``): training fitness ``f [P]``, selection score ``s [P]``, behaviour ``beh [3, P]``, the
+    generation champion ``champ`` and its ``validation`` score, the run ``state`` after the generation,
+    the encoding's and the objective's metrics."""
+    row = {
+        "generation": g, "best_fitness": float(f[champ]),
+        # float32 rounding can put the mean of equal values a hair above them: clip to where it lies
+        "mean_fitness": float(np.clip(f.mean(), f.min(), f.max())), "median_fitness": float(np.median(f)),
+        "best_so_far": float(state.best_so_far), "best_score": float(s.max()), "mean_score": float(s.mean()),
+        "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
+        "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
+        "champion_validation": validation, "best_validation": float(state.champion_validation),
+        "best_validation_generation": int(state.champion_generation),
+    }
+    for k, v in enc_metrics.items():
+        row[k] = _scalar(v)
+    for k, v in obj_metrics.items():
+        row[k] = _scalar(v)
+    return row
+
+
+def _scalar(v):
+    a = np.asarray(v)
+    return int(a) if np.issubdtype(a.dtype, np.integer) or a.dtype == bool else float(a)
+
+
+
+
+#: the config fields in which the runs of a group may differ
+VARYING = ("seed", "transfer.source")
+
+#: On a CPU, a group plays its runs' episodes in evaluator calls whose shared policy tables together
+#: hold at most this many bytes (at least one run a call; any number on other platforms). HyperNEAT's
+#: substrates are 96 MB a run in 3v2 (150 x 400 x 400 float32), read at random: measured on real
+#: populations of 8 runs at generation 50 of the protocol's 4v3 cell (2026-12-02, 2 cores), 8 runs a
+#: call 128 s, 4 a call 117 s, one a call 84 s for the same 26M live steps; at generation 10 of 3v2
+#: (short episodes) one call and eight took the same 4.5 s. The budget is this machine's L3 cache.
+CPU_TABLE_BYTES = 32 * 2**20
+
+
+def check_group(cfgs: Sequence[ml_collections.ConfigDict]) -> None:
+    """The configs of one group: at least one, equal in every field but :data:`VARYING`, distinct seeds
+    (``ConfigError`` naming the first field that differs)."""
+    if not cfgs:
+        raise ConfigError("seeds: a group needs at least one run")
+    first = cfg_lib.flatten(cfgs[0].to_dict())
+    for c in cfgs[1:]:
+        other = cfg_lib.flatten(c.to_dict())
+        for field in sorted(set(first) | set(other)):
+            if field not in VARYING and first.get(field) != other.get(field):
+                raise ConfigError(f"{field}: the runs of a batched group share every config field but "
+                                  f"{', '.join(VARYING)}; it is {first.get(field)!r} in seed {cfgs[0].seed}'s run and "
+                                  f"{other.get(field)!r} in seed {c.seed}'s")
+    seeds = [c.seed for c in cfgs]
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        raise ConfigError(f"seeds: each run of a group needs its own seed; {repeated} repeated in {seeds}")
+
+
+def over_runs(fn: Callable, vectorised: bool = True) -> Callable:
+    """``fn`` mapped over a leading run axis of every argument: ``jax.vmap``; or, where batched arithmetic
+    is not bit for bit the unbatched one (``Encoding.vmap_exact``, ``Objective.vmap_exact``), ``fn``'s own
+    program called on each run in turn, its outputs stacked. Measured: CMA-ES's ask and tell (vmapped, and
+    even under ``jax.lax.map``, evosax's covariance update rounds differently in the last bit: the step
+    size after the second generation 0.93809110 alone, 0.93809104 batched), HyperNEAT's substrate query
+    (10 runs x 150) and the novelty hybrid's k-NN (10 x 50, 16 x 150); a run's trajectory then drifts."""
+    def each(*args):
+        n = jax.tree.leaves(args)[0].shape[0]
+        if vectorised and n > 1:
+            return jax.vmap(fn)(*args)
+        outs = [fn(*jax.tree.map(lambda a: a[r], args)) for r in range(n)]
+        return jax.tree.map(lambda *o: jnp.stack(o), *outs)
+
+    return each
+
+
+def stack_states(states: Sequence[RunState]) -> RunState:
+    """R run states as one with a leading run axis."""
+    return jax.tree.map(lambda *a: jnp.stack(a), *states)
+
+
+def run_state(states: RunState, r: int) -> RunState:
+    """Run ``r``'s state of stacked ``states``."""
+    return jax.tree.map(lambda a: a[r], states)
+
+
+def _concat_states(batches):
+    """Start states ``[.., T]`` of several runs side by side: ``[.., R*T]``."""
+    return jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), *batches)
+
+
+def trial_means(stats) -> tuple[jax.Array, jax.Array]:
+    """Each run's mean fitness ``[R, P]`` and behaviour ``[R, 3, P]`` over its trials, from a grouped
+    evaluation's :class:`~kx.sim.types.EpisodeStats` ``[R, P, T]``, by the run loop's own operations on
+    each run's own ``[P, T]`` slice. The mean over the last axis of the whole ``[R, P, T]`` rounds
+    differently in the last bit for some shapes (10 x 50 x 30, CMA-ES's population: 296 of 500 means on
+    random values; none at NEAT's 150), and a run's trajectory then drifts from the run's alone."""
+    n = stats.fitness.shape[0]
+    return (jnp.stack([stats.fitness[r].mean(axis=1) for r in range(n)]),
+            jnp.stack([stats.behaviour[:, r].mean(axis=2) for r in range(n)]))
+
+
+class RunGroup:
+    """The objects of R runs of one config and their generation step, the one there is: a run alone is a
+    group of one (:meth:`Trainer.step`). No files (:func:`kx.evolve.run.train` and
+    :func:`kx.evolve.group.train_group` add them). ``trainers``: one :class:`Trainer` per run (each holds
+    its run's validation states and, for a transferred run, its source)."""
+
+    def __init__(self, trainers: Sequence[Trainer]):
+        self.trainers = list(trainers)
+        check_group([t.cfg for t in self.trainers])
+        first = self.trainers[0]
+        self.cfg, self.exp = first.cfg, first.exp
+        self.encoding, self.objective = first.encoding, first.objective
+        self.seeds = [t.cfg.seed for t in self.trainers]
+        self.validation_starts = _concat_states([t.validation_starts for t in self.trainers])
+        self.validation_keys = jnp.stack([t.validation_eval_key for t in self.trainers])
+        enc = self.encoding
+        self._ask = over_runs(enc.ask, "ask" in enc.vmap_exact)
+        self._tell = over_runs(enc.tell, "tell" in enc.vmap_exact)
+        self._score = over_runs(self.objective.score, self.objective.vmap_exact)
+        self._policy_params = (enc.policy_params if enc.policy_params_leading_axes
+                               else over_runs(enc.policy_params, "policy_params" in enc.vmap_exact))
+        self._individual = jax.vmap(enc.individual)
+
+    @classmethod
+    def from_configs(cls, cfgs: Sequence[ml_collections.ConfigDict]) -> RunGroup:
+        check_group(cfgs)  # before any trainer is built
+        return cls([Trainer(c) for c in cfgs])
+
+    def __len__(self) -> int:
+        return len(self.trainers)
+
+    def init(self) -> RunState:
+        """Every run's state before generation 0 (fresh, or seeded from its transfer source), stacked."""
+        return stack_states([t.init() for t in self.trainers])
+
+    def runs_per_call(self, params) -> int:
+        """How many runs' episodes one evaluator call plays, for policy parameters ``params`` (``[R, P,
+        ...]``): all of them, but on a CPU only as many as keep a shared table within
+        :data:`CPU_TABLE_BYTES`."""
+        n = len(self)
+        if not self.encoding.policy.shared or jax.devices()[0].platform != "cpu":
+            return n
+        per_run = sum(a.nbytes for a in jax.tree.leaves(params)) // n
+        return int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
+
+    def evaluate(self, population, starts, keys, counters=None):
+        """Run ``r``'s individuals of ``population`` (``[R, P, ...]``) on its start states ``starts[..., r*T:
+        (r+1)*T]`` with its key ``keys[r]`` (:class:`EpisodeStats` [R, P, T]): every run in one evaluator
+        call, or in calls of :meth:`runs_per_call` runs (each run's episodes are the same either way)."""
+        params = self._policy_params(population)
+        n, c = len(self), self.runs_per_call(params)
+        n_trials = starts.holder.shape[-1] // n
+        flat = lambda p: jax.tree.map(lambda a: a.reshape((a.shape[0] * a.shape[1],) + a.shape[2:]), p)  # noqa: E731 [R, P] -> [R*P]
+        parts = [ev.evaluate(self.encoding.policy, flat(jax.tree.map(lambda a: a[i:i + c], params)),
+                             jax.tree.map(lambda a: a[..., i * n_trials:(i + c) * n_trials], starts),
+                             self.exp.sim_params, self.exp.sim, key=keys[i:i + c], counters=counters)
+                 for i in range(0, n, c)]
+        if len(parts) == 1:
+            return parts[0]
+        run_axis = lambda f: 1 if f == "behaviour" else 0  # noqa: E731 (behaviour is [3, R, P, T])
+        return type(parts[0])(**{f: jnp.concatenate([getattr(p, f) for p in parts], axis=run_axis(f))
+                                 for f in parts[0].__dataclass_fields__})
+
+    def validate(self, champions) -> np.ndarray:
+        """Each run's genotype of ``champions`` (``[R, ...]``) on that run's validation states: ``[R]`` mean
+        fitness (float64 of the float32 mean, as :meth:`Trainer.validate` gives it)."""
+        stats = self.evaluate(jax.tree.map(lambda a: a[:, None], champions), self.validation_starts,
+                              self.validation_keys)
+        return np.array([float(stats.fitness[r].mean()) for r in range(len(self))])
+
+    def step(self, state: RunState) -> tuple[RunState, list[dict]]:
+        """Generation ``g`` of every run (``state.generation`` must be ``g`` for all): the stacked state
+        after it and each run's metrics row. Each run computes, bit for bit, what it computes alone (a
+        group of one): ``ask``, ``tell`` and the objective are vmapped only where that is exact
+        (:func:`over_runs`), each run's means are taken on its own slice (:func:`trial_means`), and the
+        evaluator plays each run on its own start states with its own keys."""
+        enc, cfg, n = self.encoding, self.cfg, len(self)
+        gens = np.asarray(state.generation)
+        if (gens != gens[0]).any():
+            raise RunError(f"a batched group steps its runs in lockstep; they are after generations {gens.tolist()}")
+        g = int(gens[0])
+        t0 = time.perf_counter()
+        trials = [streams.training(state.key[r], g) for r in range(n)]
+        starts = _concat_states([env.reset_batch(t.starts, cfg.trials, self.exp.sim_params, self.exp.sim)
+                                 for t in trials])
+        population, learner = self._ask(jax.vmap(lambda k: streams.learner_ask(k, g))(state.key), state.learner)
+        counters = ev.EvalCounters()
+        stats = self.evaluate(population, starts, jnp.stack([t.eval for t in trials]), counters)
+        fitness, behaviour = trial_means(stats)  # [R, P], [R, 3, P]
+        score, objective, obj_metrics = self._score(fitness, behaviour, state.objective)
+        jax.block_until_ready((fitness, score))
+        t1 = time.perf_counter()
+        learner, m = self._tell(jax.vmap(lambda k: streams.learner_step(k, g))(state.key), population, score,
+                                fitness, learner)
+        jax.block_until_ready(learner)
+        t2 = time.perf_counter()
+        f = np.asarray(fitness)
+        champs = f.argmax(axis=1)  # the first of equals in each run
+        champions = self._individual(population, jnp.asarray(champs, jnp.int32))
+        validation = self.validate(champions)
+        # the champion bookkeeping: the validated champion is replaced only when strictly better
+        best = f[np.arange(n), champs]
+        better = validation > np.asarray(state.champion_validation, np.float64)  # strictly: earliest wins ties
+        pick = lambda new, old: jnp.where(better.reshape((n,) + (1,) * (old.ndim - 1)), new, old)  # noqa: E731
+        state = state.replace(
+            learner=learner, objective=objective, generation=jnp.full((n,), g + 1, jnp.int32),
+            best_so_far=jnp.maximum(state.best_so_far, jnp.asarray(best, jnp.float32)),
+            champion=jax.tree.map(pick, champions, state.champion),
+            champion_validation=pick(jnp.asarray(validation, jnp.float32), state.champion_validation),
+            champion_generation=pick(jnp.full((n,), g, jnp.int32), state.champion_generation))
+        t3 = time.perf_counter()
+        host = jax.device_get((state.best_so_far, state.champion_validation, state.champion_generation, score,
+                               behaviour, m, obj_metrics, stats.iterations))
+        best_so_far, champ_val, champ_gen, s, beh, m, obj_metrics, iterations = host
+        rows = []
+        for r in range(n):
+            view = RunState(learner=None, objective=None, champion=None, champion_validation=champ_val[r],
+                            champion_generation=champ_gen[r], generation=None, best_so_far=best_so_far[r], key=None)
+            row = generation_row(g, f[r], s[r], beh[r], int(champs[r]), float(validation[r]), view,
+                                         {k: m[k][r] for k in enc.metric_fields},
+                                         {k: v[r] for k, v in obj_metrics.items()})
+            row.update(live_fraction=counters.live_steps / max(counters.executed_steps, 1),
+                       live_steps=int(iterations[r].sum()), eval_seconds=t1 - t0, evolve_seconds=t2 - t1,
+                       validation_seconds=t3 - t2, generation_seconds=t3 - t0)
+            rows.append(row)
+        return state, rows
+
+
