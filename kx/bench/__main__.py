@@ -27,6 +27,9 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``runs``: R = 1, 4 and 16 runs of the default config (20 generations) trained as one batched group
   (``kx.train --seeds``) against the same runs one after another in one process: runs per hour, warm
   and with compilation, and the ratio.
+* ``policies``: the cost per live step of the heuristic's whole step, NEAT's and HyperNEAT's on trained 4v3
+  populations (committed fixtures, ``scripts/make_policy_fixtures.py``), each a ratio to the heuristic's
+  measured in the same run, and each decision alone.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -36,13 +39,13 @@ from __future__ import annotations
 import argparse
 
 from kx import runtime
-from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, runs, sim, transfer
+from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, policies, runs, sim, transfer
 
 # Each benchmark is a module whose run(args) prints its figures; they import JAX inside run, after
 # kx.runtime.setup() has set up the devices.
 BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
            "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
-           "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run}
+           "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run, "policies": policies.run}
 
 
 def main(argv=None) -> None:
@@ -50,8 +53,9 @@ def main(argv=None) -> None:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(BENCHES))
     p.add_argument("--episodes", type=int, default=4500)
-    p.add_argument("--repeats", type=int, default=5, help="sim: samples per figure (the median is reported)")
-    p.add_argument("--sample-seconds", type=float, default=2.0, help="sim: the least work per sample, in seconds")
+    p.add_argument("--repeats", type=int, default=5, help="sim, policies: samples per figure (the median is reported)")
+    p.add_argument("--sample-seconds", type=float, default=2.0,
+                   help="sim, policies: the least work per sample, in seconds")
     p.add_argument("--reference-seconds", type=float, default=5.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20,
