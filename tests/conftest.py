@@ -9,7 +9,10 @@ os.environ.setdefault("KX_CACHE_MIN_COMPILE_SECS", "0")
 # compilation of programs that then run for milliseconds. LLVM's optimisation level 0, XLA CPU's older
 # elemental emitters and no expensive LLVM passes compile NEAT's generation step 3-4x faster (8.8 s ->
 # 2.3 s) and halved the suite's time (2026-12-02, 2 cores, cold cache: 788 s -> 396 s of pytest time);
-# they change how fast programs run, not what they compute. Every kx.train and helper process the suite
+# they change how fast programs run and, in the last bit, what some compute (the novelty k-NN's scores,
+# HyperNEAT's runs: tests/fixtures/run_dirs.json was written with them, and a run's trajectory under
+# them can part from the same run's under XLA's defaults), never the suite's comparisons, which run
+# both sides under the same flags. Every kx.train and helper process the suite
 # starts inherits them (so it shares the compiled programs); a user's own XLA_FLAGS choosing the
 # optimisation level wins (KX_TEST_XLA_FLAGS= runs the suite with XLA's defaults).
 COMPILE_FLAGS = os.environ.get("KX_TEST_XLA_FLAGS", "--xla_backend_optimization_level=0 "
