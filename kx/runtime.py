@@ -28,3 +28,74 @@ def setup(host_devices: int | None = None) -> None:
         # suite caches every program, so that its workers and subprocesses share them)
         jax.config.update("jax_persistent_cache_min_compile_time_secs",
                           float(os.environ.get("KX_CACHE_MIN_COMPILE_SECS", "0.5")))
+
+
+# ------------------------------------------------------------------------------------------ memory maps
+#
+# Every program XLA CPU compiles holds memory maps of the process: each of its kernels is loaded as an
+# object of its own, a few maps each (measured on jaxlib 0.10.2, 2 cores: about 300 maps for one evaluator
+# rung of the keep-away step, 20-30 for a small program). Linux refuses a process more than
+# vm.max_map_count maps (65,530 by default), and LLVM then fails to load the next program ("LLVM
+# compilation error: Cannot allocate memory") and the process dies. A process that trains several methods
+# or tasks compiles each one's rungs for each batch width: `python -m kx.bench learning` reached the limit
+# in CMA-ES after NEAT and HyperNEAT. So a long process checks its maps (check_maps) once a generation: it
+# reports them from MAPS_REPORT of the limit on, and from MAPS_RELEASE on it releases its compiled
+# programs (jax.clear_caches), which then compile again, or load from the compilation cache, as needed.
+
+MAPS_REPORT = 0.5  #: share of vm.max_map_count from which a process reports its memory maps
+MAPS_RELEASE = 0.75  #: share from which it releases its compiled programs
+
+_reported = False
+
+
+def memory_maps() -> tuple[int, int] | None:
+    """``(maps, limit)``: the process's memory maps and the kernel's limit (vm.max_map_count); ``None``
+    where the system does not tell (not Linux)."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            count = sum(1 for _ in f)
+        with open("/proc/sys/vm/max_map_count") as f:
+            limit = int(f.read())
+    except (OSError, ValueError):
+        return None
+    return count, limit
+
+
+def release_compiled() -> None:
+    """Drops every compiled program of the process (and so their memory maps): what runs next compiles
+    again, or loads from the persistent compilation cache. Results do not change."""
+    import gc
+
+    import jax
+
+    jax.clear_caches()
+    gc.collect()
+
+
+def check_maps() -> str | None:
+    """What to tell the user about the process's memory maps, or ``None`` while they are well below the
+    limit: from :data:`MAPS_REPORT` of it, once, how many and what to do; from :data:`MAPS_RELEASE`, it
+    releases the compiled programs (:func:`release_compiled`) and says so."""
+    global _reported
+    got = memory_maps()
+    if got is None:
+        return None
+    count, limit = got
+    advice = ("each compiled XLA CPU program holds memory maps (about 300 per evaluator batch width); raise the "
+              "limit (sysctl -w vm.max_map_count=262144, as root) or run fewer methods or tasks per process")
+    if count >= MAPS_RELEASE * limit:
+        release_compiled()
+        after = memory_maps()
+        _reported = False
+        return (f"memory maps: {count} of the limit {limit} (vm.max_map_count); released the process's compiled "
+                f"programs ({after[0] if after else '?'} maps now; they compile again or load from the compilation "
+                f"cache as needed). To avoid it: {advice}")
+    if count >= MAPS_REPORT * limit:
+        if _reported:
+            return None
+        _reported = True
+        return (f"memory maps: {count} of the limit {limit} (vm.max_map_count, {count / limit:.0%}); at "
+                f"{MAPS_RELEASE:.0%} kx releases its compiled programs rather than let the next compilation fail. "
+                f"{advice[0].upper()}{advice[1:]}")
+    _reported = False
+    return None

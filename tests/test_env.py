@@ -316,3 +316,16 @@ def test_fenced_traces_its_function_once_and_gives_its_values_under_jit_and_vmap
     assert "stablehlo.case" in text or "stablehlo.if" in text  # the boundary is a conditional
     v = jax.vmap(lambda a, b: ops.fenced(fn, a, b))(a.reshape(2, 2), b.reshape(2, 2))
     np.testing.assert_array_equal(v["sum"], (a + b).reshape(2, 2))
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_reset_batch_compiled_equals_reset_one_episode_at_a_time(task):
+    """reset_batch is one compiled program; its start states are the eager single resets', bit for bit."""
+    cfg = KeepAwayConfig.from_task(task)
+    key = jax.random.key(11)
+    got = env.reset_batch(key, 7, PARAMS, cfg)
+    for i, k in enumerate(jax.random.split(key, 7)):
+        with jax.disable_jit():
+            one = env.reset(k, PARAMS, cfg)
+        for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(one), strict=True):
+            np.testing.assert_array_equal(np.asarray(a)[..., i], np.asarray(b))

@@ -186,15 +186,15 @@ def assert_nothing_compiles_twice(per_generation, first: int):
     compile one function twice, see above), no step compiles a program with shapes compiled before, and
     from step ``first + 1`` on only the evaluator's programs compile for shapes reached for the first time:
     its rungs for a new batch width, and for a new count of NEAT's hidden rows (kx.neat.network.trim) the
-    networks' program of that count, the first rung's lanes and the rungs."""
+    networks' program of that count, the group's slice of them, the first rung's lanes and the rungs."""
     seen = set().union(*per_generation[:first])
     for g, compiles in enumerate(per_generation[first:], first):
         for c in compiles:
             assert c not in seen, f"step {g} compiled {c[0]} again with the same shapes"
             seen.add(c)
     later = [c for compiles in per_generation[first + 1:] for c in compiles]
-    new_shape = ("_advance", "_compact", "_prepare", "_hidden_rows")
-    assert all(any(k in name for k in new_shape) for name, _ in later), later
+    new_shape = ("_advance", "_compact", "_prepare", "_hidden_rows", "_runs_slice")
+    assert all(any(k in name for k in new_shape) for name, _ in later), [name for name, _ in later]
 
 
 @pytest.mark.parametrize("objective", ["fitness", "hybrid"])

@@ -12,8 +12,7 @@ def _train_and_test(config: str | None, seeds, starts, keys, log_name: str, targ
     """Each seed's run of ``config`` through the run loop (no run directory), its validated champion
     played on ``starts`` and, unchanged, on each target task's ``(sim, starts)`` of ``targets``; returns
     the test figures, the validated-champion curves, the seconds and the target figures ``[seed][task]``.
-    Each run's trainer is dropped before the next (thirty runs' compiled programs exhausted the memory
-    maps of the process)."""
+    Each run's trainer is dropped before the next."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import run as run_lib
     from kx.evolve.encoding import stack
@@ -53,6 +52,7 @@ def run(args) -> None:
     task), beside the hand-coded policies there."""
     import numpy as np
 
+    from kx import runtime
     from kx.evolve import config as cfg_lib
     from kx.evolve import streams
     from kx.sim import env
@@ -87,7 +87,17 @@ def run(args) -> None:
         targets.append((target, t_starts))
         target_base[task] = {n: float(ev.evaluate(make(target), None, t_starts, params, target,
                                                   key=keys.eval).fitness.mean()) for n, make in BASELINES.items()}
-    results = {name: _train_and_test(path, seeds, starts, keys, name, targets) for name, path in configs.items()}
+    results = {}
+    for name, path in configs.items():
+        results[name] = _train_and_test(path, seeds, starts, keys, name, targets)
+        # a finished method's compiled programs are released: each holds memory maps of the process, and
+        # three methods' would near the kernel's limit (kx.runtime.check_maps)
+        before = runtime.memory_maps()
+        runtime.release_compiled()
+        after = runtime.memory_maps()
+        if before and after:
+            print(f"{name}: memory maps {before[0]} after its runs (limit {before[1]}), {after[0]} once its compiled "
+                  "programs are released", flush=True)
     for name, (_, curves, _, _) in results.items():
         print(f"{name} validated champion per generation, mean over seeds: "
               + " ".join(f"{c:.3f}" for c in np.array(curves).mean(axis=0)))

@@ -93,4 +93,5 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
             t_first = t_now if done_here == 1 else t_first
             per_gen = (t_now - t_first) / (done_here - 1) if done_here > 1 else None
             log(progress_line(rows, total, None if per_gen is None else per_gen * (total - g - 1), t_now - t_start))
+            run_lib.maps_notice(log)
         return [run.rows[-1] if run.done else run.close() for run in runs]

@@ -50,12 +50,14 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import shutil
+import sys
 import time
 from typing import Callable
 
 import jax
 import ml_collections
 
+from kx import runtime
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs, streams, transfer
@@ -84,6 +86,7 @@ def evolve_in_memory(trainer: Trainer, log: Callable[[dict], None] | None = None
         rows.append(res.row)
         if log is not None:
             log(res.row)
+        maps_notice(lambda m: print(m, file=sys.stderr, flush=True))
     return state, rows
 
 
@@ -160,7 +163,16 @@ def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: boo
         return run.rows[-1] if run.rows else None
     for _ in range(run.start, cfg.generations):
         run.record(run.trainer.step(run.state))
+        maps_notice(log)
     return run.close()
+
+
+def maps_notice(log: Callable[[str], None]) -> None:
+    """The process's memory maps, told when they near the limit (:func:`kx.runtime.check_maps`, which
+    releases the compiled programs before the limit is reached)."""
+    msg = runtime.check_maps()
+    if msg:
+        log(msg)
 
 
 @dataclasses.dataclass

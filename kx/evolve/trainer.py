@@ -26,6 +26,7 @@ depends on the whole batch). The tests check it for every method, the novelty hy
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from typing import Callable, Sequence
 
@@ -38,7 +39,7 @@ from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs, streams, transfer
 from kx.evolve.checkpoint import RunState
-from kx.evolve.encoding import stack
+from kx.evolve.encoding import Encoding, stack
 from kx.evolve.errors import ConfigError, RunError
 from kx.sim import env
 from kx.sim import evaluate as ev
@@ -216,25 +217,78 @@ def over_runs(fn: Callable, vectorised: bool = True) -> Callable:
         n = jax.tree.leaves(args)[0].shape[0]
         if vectorised and n > 1:
             return jax.vmap(fn)(*args)
-        outs = [fn(*jax.tree.map(lambda a: a[r], args)) for r in range(n)]
-        return jax.tree.map(lambda *o: jnp.stack(o), *outs)
+        return stack_states([fn(*run_state(args, r)) for r in range(n)])
 
     return each
 
 
+# The host loop's operations on whole pytrees, each one compiled program rather than an eager operation
+# per leaf (every eager operation of a new shape is a program of its own, and each program holds memory
+# maps of the process: kx.runtime). Moving and stacking are exact, so compiled or eager they are the same.
+_stack = jax.jit(lambda trees: jax.tree.map(lambda *a: jnp.stack(a), *trees))
+_take = jax.jit(lambda tree, r: jax.tree.map(lambda a: a[r], tree))
+_concat_lanes = jax.jit(lambda trees: jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), *trees))
+
+
 def stack_states(states: Sequence[RunState]) -> RunState:
-    """R run states as one with a leading run axis."""
-    return jax.tree.map(lambda *a: jnp.stack(a), *states)
+    """R run states (or any pytrees of one structure) as one with a leading run axis."""
+    return _stack(list(states))
 
 
 def run_state(states: RunState, r: int) -> RunState:
-    """Run ``r``'s state of stacked ``states``."""
-    return jax.tree.map(lambda a: a[r], states)
+    """Run ``r``'s state of stacked ``states`` (host arrays stay host arrays)."""
+    leaves = jax.tree.leaves(states)
+    if all(isinstance(a, np.ndarray) for a in leaves):
+        return jax.tree.map(lambda a: a[r], states)
+    return _take(states, np.int32(r))
 
 
 def _concat_states(batches):
     """Start states ``[.., T]`` of several runs side by side: ``[.., R*T]``."""
-    return jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), *batches)
+    return batches[0] if len(batches) == 1 else _concat_lanes(list(batches))
+
+
+@functools.partial(jax.jit, static_argnames=("runs", "trials"))
+def _runs_slice(params, starts, first, *, runs, trials):
+    """Runs ``first .. first + runs - 1`` of a group's policy parameters ``[R, P, ...]``, as the evaluator
+    takes them (``[runs * P, ...]``), and of its start states ``[.., R * trials]``."""
+    def rows(a, axis, size):
+        return a if a.shape[axis] == size else jax.lax.dynamic_slice_in_dim(a, first * (size // runs), size, axis)
+
+    params = jax.tree.map(lambda a: rows(a, 0, runs), params)
+    params = jax.tree.map(lambda a: a.reshape((a.shape[0] * a.shape[1],) + a.shape[2:]), params)
+    return params, jax.tree.map(lambda a: rows(a, a.ndim - 1, runs * trials), starts)
+
+
+def _champions(encoding, population, index):
+    """Each run's genotype ``index[r]`` of its population ``[R, P, ...]``: ``[R, ...]``, and the same as
+    populations of one ``[R, 1, ...]`` for the evaluator. One compiled program for the encodings that
+    keep :meth:`kx.evolve.encoding.Encoding.individual` (every leaf's row)."""
+    if type(encoding).individual is Encoding.individual:
+        return _rows_of(population, index)
+    champions = jax.vmap(encoding.individual)(population, index)
+    return champions, jax.tree.map(lambda a: a[:, None], champions)
+
+
+@jax.jit
+def _rows_of(population, index):
+    champions = jax.tree.map(lambda a: jax.vmap(lambda x, i: x[i])(a, index), population)
+    return champions, jax.tree.map(lambda a: a[:, None], champions)
+
+
+@jax.jit
+def _bookkeeping(state: RunState, learner, objective, g, best, champions, validation, better) -> RunState:
+    """The run states after generation ``g``: learner and objective state, the best training fitness so
+    far (``best [R]``), and the validated champion, replaced by the generation's where its validation
+    score is strictly better (``better [R]``: the earliest champion wins ties)."""
+    n = better.shape[0]
+    pick = lambda new, old: jnp.where(better.reshape((n,) + (1,) * (old.ndim - 1)), new, old)  # noqa: E731
+    return state.replace(
+        learner=learner, objective=objective, generation=jnp.full((n,), g + 1, jnp.int32),
+        best_so_far=jnp.maximum(state.best_so_far, best),
+        champion=jax.tree.map(pick, champions, state.champion),
+        champion_validation=pick(validation, state.champion_validation),
+        champion_generation=pick(jnp.full((n,), g, jnp.int32), state.champion_generation))
 
 
 def trial_means(stats) -> tuple[jax.Array, jax.Array]:
@@ -269,7 +323,6 @@ class RunGroup:
         self._score = over_runs(self.objective.score, self.objective.vmap_exact)
         self._policy_params = (enc.policy_params if enc.policy_params_leading_axes
                                else over_runs(enc.policy_params, "policy_params" in enc.vmap_exact))
-        self._individual = jax.vmap(enc.individual)
 
     @classmethod
     def from_configs(cls, cfgs: Sequence[ml_collections.ConfigDict]) -> RunGroup:
@@ -300,9 +353,7 @@ class RunGroup:
         params = self._policy_params(population)
         n, c = len(self), self.runs_per_call(params)
         n_trials = starts.holder.shape[-1] // n
-        flat = lambda p: jax.tree.map(lambda a: a.reshape((a.shape[0] * a.shape[1],) + a.shape[2:]), p)  # noqa: E731 [R, P] -> [R*P]
-        parts = [ev.evaluate(self.encoding.policy, flat(jax.tree.map(lambda a: a[i:i + c], params)),
-                             jax.tree.map(lambda a: a[..., i * n_trials:(i + c) * n_trials], starts),
+        parts = [ev.evaluate(self.encoding.policy, *_runs_slice(params, starts, np.int32(i), runs=c, trials=n_trials),
                              self.exp.sim_params, self.exp.sim, key=keys[i:i + c], counters=counters)
                  for i in range(0, n, c)]
         if len(parts) == 1:
@@ -312,10 +363,9 @@ class RunGroup:
                                  for f in parts[0].__dataclass_fields__})
 
     def validate(self, champions) -> np.ndarray:
-        """Each run's genotype of ``champions`` (``[R, ...]``) on that run's validation states: ``[R]`` mean
-        fitness (float64 of the float32 mean, as :meth:`Trainer.validate` gives it)."""
-        stats = self.evaluate(jax.tree.map(lambda a: a[:, None], champions), self.validation_starts,
-                              self.validation_keys)
+        """Each run's genotype of ``champions`` (populations of one, ``[R, 1, ...]``) on that run's validation
+        states: ``[R]`` mean fitness (float64 of the float32 mean, as :meth:`Trainer.validate` gives it)."""
+        stats = self.evaluate(champions, self.validation_starts, self.validation_keys)
         return np.array([float(stats.fitness[r].mean()) for r in range(len(self))])
 
     def step(self, state: RunState) -> tuple[RunState, list[dict]]:
@@ -346,18 +396,12 @@ class RunGroup:
         t2 = time.perf_counter()
         f = np.asarray(fitness)
         champs = f.argmax(axis=1)  # the first of equals in each run
-        champions = self._individual(population, jnp.asarray(champs, jnp.int32))
-        validation = self.validate(champions)
-        # the champion bookkeeping: the validated champion is replaced only when strictly better
+        champions, as_populations = _champions(self.encoding, population, np.asarray(champs, np.int32))
+        validation = self.validate(as_populations)
         best = f[np.arange(n), champs]
         better = validation > np.asarray(state.champion_validation, np.float64)  # strictly: earliest wins ties
-        pick = lambda new, old: jnp.where(better.reshape((n,) + (1,) * (old.ndim - 1)), new, old)  # noqa: E731
-        state = state.replace(
-            learner=learner, objective=objective, generation=jnp.full((n,), g + 1, jnp.int32),
-            best_so_far=jnp.maximum(state.best_so_far, jnp.asarray(best, jnp.float32)),
-            champion=jax.tree.map(pick, champions, state.champion),
-            champion_validation=pick(jnp.asarray(validation, jnp.float32), state.champion_validation),
-            champion_generation=pick(jnp.full((n,), g, jnp.int32), state.champion_generation))
+        state = _bookkeeping(state, learner, objective, np.int32(g), best.astype(np.float32), champions,
+                             validation.astype(np.float32), better)
         t3 = time.perf_counter()
         host = jax.device_get((state.best_so_far, state.champion_validation, state.champion_generation, score,
                                behaviour, m, obj_metrics, stats.iterations))

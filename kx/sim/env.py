@@ -130,7 +130,14 @@ def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> Sta
 
 
 def reset_batch(key: jax.Array, n: int, params: KeepAwayParams, config: KeepAwayConfig) -> State:
-    """``n`` independent start states, batch-last (``[.., n]``)."""
+    """``n`` independent start states, batch-last (``[.., n]``). One compiled program per ``(n, config)``
+    (eagerly, its operations were some sixty programs of their own per batch size, in every process); what
+    it computes (integer and key arithmetic, uniform draws from bits, top-k) is exact, compiled or not."""
+    return _reset_batch(key, params, n=int(n), config=config)
+
+
+@functools.partial(jax.jit, static_argnames=("n", "config"))
+def _reset_batch(key, params, *, n, config):
     return jax.vmap(lambda kk: reset(kk, params, config), out_axes=-1)(jax.random.split(key, n))
 
 

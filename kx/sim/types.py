@@ -17,7 +17,7 @@ import dataclasses
 import enum
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 # Hard limits: the largest team the observation layouts, the integer accumulators and the tests cover.
@@ -158,10 +158,10 @@ class KeepAwayParams:
     def validate(self) -> "KeepAwayParams":
         """Raises :class:`KeepAwayError` naming the field if a concrete value is out of range."""
         try:
-            mi, sc, kn, rd, ti = (float(jnp.asarray(v)) for v in (
+            mi, sc, kn, rd, ti = (float(np.asarray(v)) for v in (
                 self.max_iterations, self.start_clearance, self.kick_noise_deg, self.taker_reaction_delay,
                 self.tackle_iterations))
-        except (TypeError, jax.errors.ConcretizationTypeError):
+        except (TypeError, jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
             return self  # traced: validated by the caller that built it
         if mi != int(mi) or not 1 <= mi <= MAX_ITERATIONS_LIMIT:
             raise KeepAwayError(f"max_iterations: must be an integer in [1, {MAX_ITERATIONS_LIMIT}], got {mi:g}")
