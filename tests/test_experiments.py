@@ -357,3 +357,20 @@ def test_the_committed_sweeps_read_as_finished_under_the_same_names(tmp_path, mo
     names = sweep.names(sw.combinations())
     assert {(r["combination"], r["overrides"]) for r in rows} == {(names[c], sweep.key(c)) for c in sw.combinations()}
     assert sweep.write_report(out).read_bytes() == (committed / "report.md").read_bytes()
+
+
+def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mean():
+    from kx.experiments import report
+
+    def row(method, phase, target, wall):
+        return {"method": method, "phase": phase, "target": target, "wall_seconds": str(wall)}
+
+    rows = [row("neat", "source", "3v2", 8), row("neat", "source", "3v2", 12), row("neat", "target", "4v3", 20),
+            row("hyperneat", "source", "3v2", 30), row("hyperneat", "target", "4v3", 40),
+            row("hyperneat", "target", "5v3", 60), row("cma_es", "source", "3v2", 5)]
+    seconds, borrowed, missing = report.full_protocol_seconds(rows, runs=1)
+    # per run index: NEAT 2 sources (fitness, hybrid) and 3 targets x 4 setups, HyperNEAT the same,
+    # CMA-ES 1 source and 3 x 2 targets; HyperNEAT's 6v4 costed at its targets' mean (50)
+    assert seconds == 2 * 10 + 12 * 20 + 2 * 30 + 4 * 40 + 4 * 60 + 4 * 50 + 5
+    assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target"}
+    assert "left out, with no runs here: CMA-ES target" in report.full_protocol_estimate(rows, runs=1)

@@ -295,7 +295,40 @@ def _throughput(rows: list[dict]) -> list[str]:
             per_gen = gen / float(np.mean([int(r["generations"]) for r in rs]))
             lines.append(f"| {METHOD_NAMES[m]} | {phase} | {len(rs)} | {wall:.1f} | {per_gen:.2f} | "
                          f"{3600 / wall:.1f} | {gen / wall:.2f} |")
-    return lines
+    return lines + ["", full_protocol_estimate(rows)]
+
+
+def full_protocol_seconds(rows: list[dict], runs: int = 20) -> tuple[float, set, set]:
+    """The whole protocol's wall time on the machine these rows ran on: every run of :func:`table3.plan`
+    (``runs`` a cell, every method, target and setup) at the mean wall time per run of its method, phase
+    and target in ``rows``. Returns the seconds, the target tasks with no run here (costed at their
+    method's mean over the targets that have some) and the method phases with none (left out)."""
+    total, borrowed, missing = 0.0, set(), set()
+    for spec in t3.plan(runs=runs):
+        same = [r for r in rows if r["method"] == spec.method and r["phase"] == spec.phase]
+        here = [r for r in same if r["target"] == spec.target]
+        if not here:
+            if not same:
+                missing.add(f"{METHOD_NAMES[spec.method]} {spec.phase}")
+                continue
+            borrowed.add(spec.target)
+            here = same
+        total += float(np.mean([float(r["wall_seconds"]) for r in here]))
+    return total, borrowed, missing
+
+
+def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
+    """:func:`full_protocol_seconds` as the report's sentence."""
+    total, borrowed, missing = full_protocol_seconds(rows, runs)
+    text = (f"The full protocol ({len(t3.plan(runs=runs))} runs: {runs} a cell, targets {', '.join(t3.TARGETS)}, "
+            f"every setup, CMA-ES's two) at these mean wall times per run: **{total / 3600:.1f} hours** one after "
+            "another on this machine")
+    if borrowed:
+        text += (f"; the targets with no runs here ({', '.join(sorted(borrowed, key=t3.TARGETS.index))}) costed as "
+                 "the measured targets' mean (not measured: their teams and episodes differ)")
+    if missing:
+        text += f"; left out, with no runs here: {', '.join(sorted(missing))}"
+    return text + "."
 
 
 def write(out: str | pathlib.Path) -> pathlib.Path:
