@@ -577,5 +577,5 @@ def test_trimmed_networks_compute_the_same_outputs_as_the_full_ones():
 
 
 def test_hidden_rows_ladder():
-    assert [nw.hidden_rows(n, 16) for n in (0, 1, 4, 5, 8, 9, 16)] == [0, 4, 4, 8, 8, 16, 16]
-    assert nw.hidden_rows(3, 2) == 2 and nw.hidden_rows(0, 0) == 0
+    assert [nw.hidden_rows(n, 16) for n in (0, 1, 4, 5, 8, 9, 16)] == [4, 4, 4, 8, 8, 16, 16]
+    assert nw.hidden_rows(3, 2) == 2 and nw.hidden_rows(0, 0) == 0 and nw.hidden_rows(9, 12) == 12

@@ -100,14 +100,13 @@ def forward(net: Network, x: jax.Array, config: NEATConfig, pre_activation: bool
 
 def hidden_rows(n_used: int, capacity: int) -> int:
     """The hidden rows a network of :func:`trim` keeps for genomes with at most ``n_used`` hidden nodes:
-    0, 4, 8, 16, ... (the next power of two from 4), at most ``capacity``. Each count is a shape the
-    evaluator compiles its rungs for (about 30 s on 2 cores, then cached), so the counts are few: at
-    most 4 for the shipped capacity of 16, and a run's population passes through them in order. Rows
-    cost little below 4 (4v3 generation-0 population, ns per live step: 0 rows 1169, 2 rows 1261, 4
-    rows 1369, 8 rows 1792, 16 rows 2993; noisy, with other work on the machine)."""
-    if n_used <= 0:
-        return 0
-    return min(capacity, max(4, 1 << (int(n_used) - 1).bit_length()))
+    4, 8, 16, ... (the next power of two from 4), at most ``capacity``. Each count is a shape the
+    evaluator compiles its rungs for (30-90 s on 2 cores, then cached), and each of its programs holds
+    memory maps of the process (kx.runtime), so the counts are few: at most 3 for the shipped capacity of
+    16, and a run passes through them in order. Below 4 rows cost little (4v3 generation-0 population, ns
+    per live step: 0 rows 1169, 2 rows 1261, 4 rows 1369, 8 rows 1792, 16 rows 2993; noisy, with other
+    work on the machine), so 0 to 4 hidden nodes share one shape."""
+    return min(capacity, max(4, 1 << (max(int(n_used), 1) - 1).bit_length()))
 
 
 def trim(net: Network, rows: int, config: NEATConfig) -> Network:
