@@ -85,6 +85,8 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
                 stacked, members = stack_states([runs[i].state for i in batch]), batch
             t_start = time.perf_counter()
             stacked, rows = sub.step(stacked)
+            if done_here == 0 and len(batch) > 1 and sub.calls_note:
+                log(f"batched group: {sub.calls_note}")
             host = jax.device_get(stacked)  # one transfer; each run's state is a view of it
             for j, i in enumerate(batch):
                 runs[i].record(GenerationResult(row=rows[j], state=run_state(host, j)))

@@ -321,6 +321,7 @@ class RunGroup:
         self._ask = over_runs(enc.ask, "ask" in enc.vmap_exact)
         self._tell = over_runs(enc.tell, "tell" in enc.vmap_exact)
         self._score = over_runs(self.objective.score, self.objective.vmap_exact)
+        self.calls_note = None  # how the last generation's episodes were dealt into evaluator calls, and why
         self._policy_params = (enc.policy_params if enc.policy_params_leading_axes
                                else over_runs(enc.policy_params, "policy_params" in enc.vmap_exact))
 
@@ -342,9 +343,15 @@ class RunGroup:
         :data:`CPU_TABLE_BYTES`."""
         n = len(self)
         if not self.encoding.policy.shared or jax.devices()[0].platform != "cpu":
+            self.calls_note = f"every run's episodes in one evaluator call ({n} runs)"
             return n
         per_run = sum(a.nbytes for a in jax.tree.leaves(params)) // n
-        return int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
+        c = int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
+        self.calls_note = (f"{c} of the {n} runs' episodes per evaluator call: on a CPU a call's shared policy "
+                           f"tables stay within {CPU_TABLE_BYTES / 2**20:.0f} MB (this method's are "
+                           f"{per_run / 2**20:.1f} MB a run; more runs a call read them at random from memory and "
+                           "ran slower than one by one)")
+        return c
 
     def evaluate(self, population, starts, keys, counters=None):
         """Run ``r``'s individuals of ``population`` (``[R, P, ...]``) on its start states ``starts[..., r*T:
