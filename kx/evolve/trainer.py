@@ -347,6 +347,10 @@ class RunGroup:
             return n
         per_run = sum(a.nbytes for a in jax.tree.leaves(params)) // n
         c = int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
+        if c == n:
+            self.calls_note = (f"every run's episodes in one evaluator call ({n} runs; their shared policy tables, "
+                               f"{per_run / 2**20:.1f} MB a run, fit a CPU call's {CPU_TABLE_BYTES / 2**20:.0f} MB)")
+            return c
         self.calls_note = (f"{c} of the {n} runs' episodes per evaluator call: on a CPU a call's shared policy "
                            f"tables stay within {CPU_TABLE_BYTES / 2**20:.0f} MB (this method's are "
                            f"{per_run / 2**20:.1f} MB a run; more runs a call read them at random from memory and "
