@@ -42,6 +42,7 @@ from typing import Any, ClassVar
 
 import jax
 import ml_collections
+import numpy as np
 
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
@@ -70,6 +71,12 @@ class Encoding(abc.ABC):
     #: all runs, rather than being mapped over runs (NEAT: it reads its genomes' hidden-node counts on the
     #: host to choose the networks' shape, which a vmap cannot)
     policy_params_leading_axes: ClassVar[bool] = False
+
+    def policy_shape(self, population) -> np.ndarray | None:
+        """For an encoding with :attr:`policy_params_leading_axes`: a key per run of ``population`` (``[R,
+        P, ...]``, host ints) of the shape its own ``policy_params`` would take (NEAT: its hidden rows), so
+        that a group plays each run in its own shape; ``None``: one shape for every run."""
+        return None
 
     def __init__(self, cfg: ml_collections.ConfigDict, sim: KeepAwayConfig, sim_params: KeepAwayParams):
         self.cfg, self.sim, self.sim_params = cfg, sim, sim_params

@@ -248,6 +248,23 @@ def _concat_states(batches):
     return batches[0] if len(batches) == 1 else _concat_lanes(list(batches))
 
 
+_take_runs = jax.jit(lambda tree, runs: jax.tree.map(lambda a: a[runs], tree))
+
+
+@functools.partial(jax.jit, static_argnames=("trials",))
+def _take_trials(starts, runs, *, trials):
+    """The start states ``[.., R * trials]`` of runs ``runs``: ``[.., len(runs) * trials]``."""
+    cols = (runs[:, None] * trials + jnp.arange(trials, dtype=jnp.int32)[None]).reshape(-1)
+    return jax.tree.map(lambda a: jnp.take(a, cols, axis=-1), starts)
+
+
+@jax.jit
+def _reorder_runs(stats, order):
+    """:class:`EpisodeStats` ``[R, P, T]`` (``behaviour`` ``[3, R, P, T]``) with its runs in ``order``."""
+    return type(stats)(**{f: jnp.take(getattr(stats, f), order, axis=1 if f == "behaviour" else 0)
+                          for f in stats.__dataclass_fields__})
+
+
 @functools.partial(jax.jit, static_argnames=("runs", "trials"))
 def _runs_slice(params, starts, first, *, runs, trials):
     """Runs ``first .. first + runs - 1`` of a group's policy parameters ``[R, P, ...]``, as the evaluator
@@ -338,10 +355,10 @@ class RunGroup:
         return stack_states([t.init() for t in self.trainers])
 
     def runs_per_call(self, params) -> int:
-        """How many runs' episodes one evaluator call plays, for policy parameters ``params`` (``[R, P,
-        ...]``): all of them, but on a CPU only as many as keep a shared table within
+        """How many runs' episodes one evaluator call plays, for policy parameters ``params`` (``[k, P,
+        ...]``, k runs): all of them, but on a CPU only as many as keep a shared table within
         :data:`CPU_TABLE_BYTES`."""
-        n = len(self)
+        n = jax.tree.leaves(params)[0].shape[0]
         if not self.encoding.policy.shared or jax.devices()[0].platform != "cpu":
             self.calls_note = f"every run's episodes in one evaluator call ({n} runs)"
             return n
@@ -357,21 +374,52 @@ class RunGroup:
                            "ran slower than one by one)")
         return c
 
+    def _param_parts(self, population) -> list[tuple[np.ndarray, object]]:
+        """The runs' policy parameters, as ``(runs, params [len(runs), P, ...])`` parts: one part of every
+        run, or for an encoding whose parameters' shape follows its genotypes
+        (:meth:`kx.evolve.encoding.Encoding.policy_shape`, NEAT's hidden rows) one part per shape, so that
+        each run plays the shape it plays alone (a group's largest made its runs' steps dearer)."""
+        n, enc = len(self), self.encoding
+        everyone = np.arange(n)
+        shapes = enc.policy_shape(population) if enc.policy_params_leading_axes else None
+        if shapes is None or len(set(shapes.tolist())) == 1:
+            return [(everyone, self._policy_params(population))]
+        parts = []
+        for key in sorted(set(shapes.tolist())):
+            runs = np.flatnonzero(shapes == key)
+            parts.append((runs, enc.policy_params(_take_runs(population, runs.astype(np.int32)))))
+        return parts
+
     def evaluate(self, population, starts, keys, counters=None):
         """Run ``r``'s individuals of ``population`` (``[R, P, ...]``) on its start states ``starts[..., r*T:
         (r+1)*T]`` with its key ``keys[r]`` (:class:`EpisodeStats` [R, P, T]): every run in one evaluator
-        call, or in calls of :meth:`runs_per_call` runs (each run's episodes are the same either way)."""
-        params = self._policy_params(population)
-        n, c = len(self), self.runs_per_call(params)
+        call, or in calls of :meth:`runs_per_call` runs of one part of :meth:`_param_parts` (each run's
+        episodes are the same either way: lanes never interact)."""
+        n = len(self)
         n_trials = starts.holder.shape[-1] // n
-        parts = [ev.evaluate(self.encoding.policy, *_runs_slice(params, starts, np.int32(i), runs=c, trials=n_trials),
-                             self.exp.sim_params, self.exp.sim, key=keys[i:i + c], counters=counters)
-                 for i in range(0, n, c)]
-        if len(parts) == 1:
-            return parts[0]
+        order, results = [], []
+        for runs, params in self._param_parts(population):
+            if len(runs) < n:  # the part's runs' start states and keys
+                part_starts = _take_trials(starts, runs.astype(np.int32), trials=n_trials)
+                part_keys = keys[runs]
+            else:
+                part_starts, part_keys = starts, keys
+            c = self.runs_per_call(params)
+            for i in range(0, len(runs), c):
+                results.append(ev.evaluate(self.encoding.policy, *_runs_slice(params, part_starts, np.int32(i), runs=c,
+                                                                              trials=n_trials),
+                                           self.exp.sim_params, self.exp.sim, key=part_keys[i:i + c],
+                                           counters=counters))
+            order.extend(runs.tolist())
+        if len(results) == 1:
+            return results[0]
         run_axis = lambda f: 1 if f == "behaviour" else 0  # noqa: E731 (behaviour is [3, R, P, T])
-        return type(parts[0])(**{f: jnp.concatenate([getattr(p, f) for p in parts], axis=run_axis(f))
-                                 for f in parts[0].__dataclass_fields__})
+        stats = type(results[0])(**{f: jnp.concatenate([getattr(p, f) for p in results], axis=run_axis(f))
+                                    for f in results[0].__dataclass_fields__})
+        if order == list(range(n)):
+            return stats
+        back = np.argsort(np.asarray(order)).astype(np.int32)  # the runs in their own order again
+        return _reorder_runs(stats, back)
 
     def validate(self, champions) -> np.ndarray:
         """Each run's genotype of ``champions`` (populations of one, ``[R, 1, ...]``) on that run's validation

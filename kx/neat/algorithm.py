@@ -389,6 +389,13 @@ class NEAT:
         rows = hidden_rows(used, self.config.n_hidden)
         return _policy_networks_jit(rows)(population, config=self.config)
 
+    def hidden_rows_of(self, populations: Genome) -> np.ndarray:
+        """The hidden rows :meth:`policy_networks` keeps for each population of ``populations`` (``[R, P,
+        ...]``): ``[R]`` host ints."""
+        kinds = np.asarray(populations.node_kind)
+        used = (kinds == HIDDEN).sum(axis=-1).reshape(kinds.shape[0], -1).max(axis=1)
+        return np.array([hidden_rows(int(u), self.config.n_hidden) for u in used])
+
     def init_from(self, population: Genome, next_node_id, next_innov, threshold=None,
                   params: NEATParams | None = None) -> NEATState:
         """:func:`init_from` (``threshold`` default: the parameters' ``compat_threshold``)."""

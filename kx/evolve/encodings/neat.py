@@ -151,6 +151,9 @@ class NEATEncoding(Encoding):
     def policy_params(self, population):
         return self.neat.policy_networks(population)
 
+    def policy_shape(self, population):
+        return self.neat.hidden_rows_of(population)
+
     # ------------------------------------------------------------------------------------- transfer
 
     def _maps(self, source):
