@@ -12,6 +12,7 @@ from conftest import TASKS, make_state
 from kx.hyperneat import bev
 from kx.neat.activations import ACTIVATIONS
 from kx.sim import env, observe
+from kx.sim.ops import fenced
 from kx.sim.policies import Shared
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
@@ -310,6 +311,76 @@ def test_sparse_equals_dense_paper(task):
 
 def test_sparse_equals_dense_authors():
     _check_equal("5v3", "authors", "tanh", jax.random.key(8))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "image"))
+def _compact_and_all_entries(table, index, state, config, image):
+    """The sums at the keepers' cells: sparse_outputs (path steps listed without their padding), and the
+    chain over every entry of sparse_image, padding included, in its order (the code before 2026-12-03)."""
+    kc = state.keeper_x + W * state.keeper_y
+    fast = bev.sparse_outputs(table, index, kc, state, config, image, None)
+    # fenced as sparse_outputs is: fused into their consumers, the image's sums would round differently
+    cells, values = fenced(functools.partial(bev.sparse_image, config=config, image=image), state)
+
+    def gathered(w, b, index, kc, cells):
+        base = (index[None] * W * W + kc) * W * W
+        return w[base[:, None] + cells[None]], b[index[None] * W * W + kc]
+
+    wv, total = fenced(gathered, table["w"].reshape(-1), table["b"].reshape(-1), index, kc, cells)
+
+    def products(wv, total, values):
+        for e in range(values.shape[0]):
+            total = total + values[e][None] * wv[:, e]
+        return total
+
+    return fast, fenced(products, wv, total, values)
+
+
+@pytest.mark.parametrize("task", ["3v2", "6v4"])
+@pytest.mark.parametrize("image", ["authors", "paper"])
+def test_padding_left_out_changes_no_bit(task, image):
+    """A padding entry adds 0 * w: the sums without them are those over every entry, bit for bit (6v4's
+    paper image, whose clip changes path cells, takes every entry itself)."""
+    config = KeepAwayConfig.from_task(task)
+    state = random_states(jax.random.key(12), config)
+    n = state.holder.shape[0]
+    table = random_table(jax.random.key(13), 4, W * W)
+    fast, full = map(np.asarray, _compact_and_all_entries(table, jnp.arange(n, dtype=jnp.int32) % 4, state, config,
+                                                          image))
+    np.testing.assert_array_equal(fast.view(np.uint32), full.view(np.uint32))
+    # lanes of every length were there: some with all their path steps (2 x 18 x (K - 1 + T) slots), some
+    # with none (every agent in one cell)
+    _, _, _, _, _, length = jax.jit(bev._compact_parts, static_argnums=(1, 2))(state, config, image)
+    assert int(length.min()) == 0 and int(length.max()) > 3 * bev.CHUNK
+
+
+def test_skip_idle_holds_where_nobody_reads():
+    """skip_idle: the same decision wherever a holder has the ball in a running episode, hold elsewhere;
+    the evaluator's episodes are the same bit for bit."""
+    from kx.sim import evaluate as ev
+
+    config = KeepAwayConfig.from_task("4v3")
+    state = random_states(jax.random.key(14), config)
+    n = state.holder.shape[0]
+    state = state.replace(done=jnp.arange(n) % 5 == 1)
+    table = random_table(jax.random.key(15), 3, W * W)
+    shared = Shared(table, jnp.arange(n, dtype=jnp.int32) % 3)
+    both = jax.jit(lambda shared, state: (bev.bev_policy(config, "authors").apply(shared, state, None),
+                                          bev.bev_policy(config, "authors", skip_idle=True).apply(shared, state, None)))
+    full, skip = map(np.asarray, both(shared, state))
+    busy = (np.asarray(state.holder) >= 0) & ~np.asarray(state.done)
+    assert busy.mean() > 0.3 and (~busy).mean() > 0.3
+    np.testing.assert_array_equal(skip[busy], full[busy])
+    np.testing.assert_array_equal(skip[~busy], np.maximum(np.asarray(state.holder), 0)[~busy])
+    with pytest.raises(ValueError, match="skip_idle: allowed"):
+        bev.bev_policy(config, skip_idle="yes")
+    params = KeepAwayParams(max_iterations=80)
+    starts = env.reset_batch(jax.random.key(16), 8, params, config)
+    stats = [jax.tree.map(np.asarray, ev.evaluate(bev.bev_policy(config, "authors", skip_idle=skip), table, starts,
+                                                  params, config, key=jax.random.key(17))) for skip in (False, True)]
+    for f in stats[0].__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(stats[0], f), getattr(stats[1], f), err_msg=f)
+    assert stats[0].passes.sum() > 0  # the ball flew: lanes were idle while it did
 
 
 def test_literal_equals_dense():
