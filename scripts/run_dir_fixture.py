@@ -19,11 +19,11 @@ differ (regenerate the fixture there as above).
 
 from __future__ import annotations
 
+import argparse
 import csv
 import hashlib
 import json
 import pathlib
-import sys
 import tempfile
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -100,4 +100,7 @@ def main(out: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else str(REPO / "tests" / "fixtures" / "run_dirs.json"))
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("out", nargs="?", default=str(REPO / "tests" / "fixtures" / "run_dirs.json"),
+                        help="the fixture to write (default: tests/fixtures/run_dirs.json)")
+    main(parser.parse_args().out)
