@@ -14,9 +14,12 @@ figures in brackets, taken under load): heuristic 8.6M live-steps/s (first call 
 episodes after about 14 iterations (the heuristic's after 124), so the evaluator's per-call costs
 weigh on the BEV figure; the step alone (4096 lanes in lockstep for 50 iterations, 2 devices) ran the
 heuristic at 12.0M lane-steps/s, the BEV policy at 1.62M (0.13) and the dense reference at 0.086M.
-What dominates the BEV policy: XLA CPU's gather, about 1.2 ns per weight, 231 weights per lane and
+What dominated the BEV policy then: XLA CPU's gather, about 1.2 ns per weight, 231 weights per lane and
 iteration for 3v2 (a measured 280 ns of the policy's ~600 ns), then the 231 products (~120 ns) and the
-sparse image (~95 ns).
+sparse image (~95 ns). These figures are of the code before 2026-12-03, which gathered every slot of the
+image; the policy now leaves the padding out and reads the weights inside its sums (docs/hyperneat.md,
+"What it costs"). Random substrates lose the ball within a few iterations: ``python -m kx.bench policies``
+measures a trained population.
 """
 
 from __future__ import annotations

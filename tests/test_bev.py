@@ -348,10 +348,10 @@ def test_padding_left_out_changes_no_bit(task, image):
     fast, full = map(np.asarray, _compact_and_all_entries(table, jnp.arange(n, dtype=jnp.int32) % 4, state, config,
                                                           image))
     np.testing.assert_array_equal(fast.view(np.uint32), full.view(np.uint32))
-    # lanes of every length were there: some with all their path steps (2 x 18 x (K - 1 + T) slots), some
-    # with none (every agent in one cell)
+    # lanes of many lengths were there: some with none (every agent in one cell), some that took the loop
+    # more than one pass
     _, _, _, _, _, length = jax.jit(bev._compact_parts, static_argnums=(1, 2))(state, config, image)
-    assert int(length.min()) == 0 and int(length.max()) > 3 * bev.CHUNK
+    assert int(length.min()) == 0 and int(length.max()) > bev.CHUNK
 
 
 def test_skip_idle_holds_where_nobody_reads():

@@ -207,9 +207,11 @@ def _genome_rows(index: jax.Array, rows: jax.Array, n: int) -> jax.Array:
     return (index[None] * n + rows) * n
 
 
-#: path entries per pass of :func:`sparse_outputs`' loop (measured in the evaluator on the trained 4v3
-#: population of ``kx.bench policies``: 8 to 32 within 5% of each other)
-CHUNK = 16
+#: path steps per pass of :func:`sparse_outputs`' loop. In the evaluator on the trained 4v3 population of
+#: ``kx.bench policies``, sampled in turn in one process, 8, 16, 24, 32 and 48 came within the noise of
+#: each other (16 and 32 over 8 rounds: 6.3-6.6 and 6.4-6.9 times the heuristic's whole step); alone,
+#: 16 was cheaper on 128 lanes (710 against 776 ns a lane) and 32 on 1125 (941 against 1174)
+CHUNK = 32
 
 
 def _compact_parts(state: State, config: KeepAwayConfig, image: str):
@@ -254,9 +256,10 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
     ``0 * w``, which changes no sum, so the outputs are those of the whole list bit for bit. The agents'
     entries come first, then the path steps, listed one after another per lane (:func:`_compact_parts`)
     and taken ``CHUNK`` at a time for as long as any lane of the batch has some left: a lane pays for
-    the batch's longest list, not for every path's ``W - 2`` slots (in trained 4v3 play 34 steps on
-    average and about 90 at most in a batch, of 108 slots). Where the paper image's clip changes path
-    cells (:func:`_needs_path_clip`: 5v3 and 6v4), every entry of :func:`sparse_image` is taken."""
+    the batch's longest list (rounded up to a chunk), not for every path's ``W - 2`` slots (in trained
+    4v3 play 34 steps on average and about 90 at most in a batch, of 108 slots). Where the paper image's
+    clip changes path cells (:func:`_needs_path_clip`: 5v3 and 6v4), every entry of
+    :func:`sparse_image` is taken."""
     _check(config, image, "cells", activation or "identity")
     n = config.field_size**2
     w_flat = table["w"].reshape(-1)
