@@ -26,6 +26,7 @@ table by its content's hash), so that ``check`` feeds the new code exactly the i
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import pathlib
@@ -193,7 +194,11 @@ def figures(table, index, state, config, image):
 
 
 def main() -> None:
-    mode, root = sys.argv[1], pathlib.Path(sys.argv[2])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("mode", choices=("save", "check"), help="save: before the change; check: after it")
+    parser.add_argument("dir", help="the folder of the saved arrays")
+    args = parser.parse_args()
+    mode, root = args.mode, pathlib.Path(args.dir)
     runtime.setup()
     import jax
     import jax.numpy as jnp
