@@ -227,7 +227,8 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
     monkeypatch.setattr(trainer_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
     state, rows = group.step(state)
     assert calls == [(1,)] * 6  # the 3 runs' episodes, one run a call, then their validation
-    assert group.calls_note.startswith("1 of the 3 runs' episodes per evaluator call")  # what a group's log says
+    # what a group's log says: how the generation's episodes were played (not the champions' validation)
+    assert group.calls_note.startswith("1 of the 3 runs' episodes per evaluator call"), group.calls_note
     strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
     for r, c in enumerate(cfgs):
         trainer = run_lib.Trainer(c)

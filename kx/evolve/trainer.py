@@ -424,7 +424,9 @@ class RunGroup:
     def validate(self, champions) -> np.ndarray:
         """Each run's genotype of ``champions`` (populations of one, ``[R, 1, ...]``) on that run's validation
         states: ``[R]`` mean fitness (float64 of the float32 mean, as :meth:`Trainer.validate` gives it)."""
+        note = self.calls_note  # the note tells how the generation's episodes were played, not the champions'
         stats = self.evaluate(champions, self.validation_starts, self.validation_keys)
+        self.calls_note = note
         return np.array([float(stats.fitness[r].mean()) for r in range(len(self))])
 
     def step(self, state: RunState) -> tuple[RunState, list[dict]]:
