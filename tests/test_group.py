@@ -209,6 +209,18 @@ def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+def assert_first_generation_alone(cfgs, state, rows):
+    """Each run's first generation in a group (its stacked ``state`` after it and its metrics ``rows``) is
+    the one the run steps alone: every row but the execution figures, every leaf of the run state."""
+    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
+    for r, c in enumerate(cfgs):
+        trainer = run_lib.Trainer(c)
+        result = trainer.step(trainer.init())
+        assert strip(result.row) == strip(rows[r]), c.seed
+        for x, y in zip(jax.tree.leaves(result.state), jax.tree.leaves(trainer_lib.run_state(state, r)), strict=True):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
 def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(monkeypatch):
     """On a CPU a group plays its runs' episodes in calls whose substrate tables fit CPU_TABLE_BYTES (one
     run a call at the paper's sizes); forced here at test sizes, every row and run state is still each
@@ -229,13 +241,7 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
     assert calls == [(1,)] * 6  # the 3 runs' episodes, one run a call, then their validation
     # what a group's log says: how the generation's episodes were played (not the champions' validation)
     assert group.calls_note.startswith("1 of the 3 runs' episodes per evaluator call"), group.calls_note
-    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
-    for r, c in enumerate(cfgs):
-        trainer = run_lib.Trainer(c)
-        result = trainer.step(trainer.init())
-        assert strip(result.row) == strip(rows[r]), c.seed
-        for x, y in zip(jax.tree.leaves(result.state), jax.tree.leaves(trainer_lib.run_state(state, r)), strict=True):
-            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert_first_generation_alone(cfgs, state, rows)
 
 
 def test_a_neat_group_plays_each_run_in_its_own_network_shape_and_computes_what_its_runs_do_alone(monkeypatch):
@@ -252,13 +258,7 @@ def test_a_neat_group_plays_each_run_in_its_own_network_shape_and_computes_what_
     monkeypatch.setattr(trainer_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
     state, rows = group.step(group.init())
     assert calls == [(1,), (1,)] * 2  # run 1's shape, then run 0's; then their validation the same way
-    strip = lambda row: {k: v for k, v in row.items() if k not in outputs.EXECUTION_FIELDS}  # noqa: E731
-    for r, c in enumerate(cfgs):
-        trainer = run_lib.Trainer(c)
-        result = trainer.step(trainer.init())
-        assert strip(result.row) == strip(rows[r]), c.seed
-        for x, y in zip(jax.tree.leaves(result.state), jax.tree.leaves(trainer_lib.run_state(state, r)), strict=True):
-            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert_first_generation_alone(cfgs, state, rows)
 
 
 @pytest.mark.slow
