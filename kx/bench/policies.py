@@ -25,9 +25,10 @@ makes them comparable; what it does not remove is that long episodes leave a lon
 which costs more per step, so the heuristic's short episodes are, if anything, charged more per step than
 the trained teams' long ones. The policy's own share is reported as the difference to the heuristic's
 whole step (whose decision is about 5 ns a lane) and to always-hold's (a decision of no cost; its
-episodes are the shortest, so the evaluator's fixed costs weigh most on it). ``hyperneat_skip_idle`` is
-HyperNEAT's policy with :func:`kx.hyperneat.bev.bev_policy`'s ``skip_idle`` (no decision where nobody
-holds the ball or the episode is over: the same episodes bit for bit), which the run loop does not play.
+episodes are the shortest, so the evaluator's fixed costs weigh most on it). ``hyperneat`` is what
+the run loop plays: :func:`kx.hyperneat.bev.bev_policy` with ``skip_idle`` (no decision where nobody holds
+the ball or the episode is over); ``hyperneat_every_state`` decides on every state as the dense reference
+does (the same episodes bit for bit, and so the same mean fitness).
 
 **Samples.** The policies are sampled in turn (one sample of each, ``--repeats`` times, as ``kx.bench
 sim`` does), each sample repeating evaluations for at least ``--sample-seconds``; each figure is the median
@@ -209,11 +210,11 @@ def run(args) -> None:
             times.append(time.perf_counter() - t0)
         build[m] = times
         policies[m] = (enc.policy, params)
-    # HyperNEAT's policy deciding only where the world reads the decision (bev_policy's skip_idle: the same
-    # episodes bit for bit); not what the run loop plays unless its encoding asks for it
+    # HyperNEAT's policy deciding on every state, idle lanes included (bev_policy without skip_idle: the same
+    # episodes bit for bit); the run loop's encoding skips them
     enc = fixtures["hyperneat"][0].encoding
-    policies["hyperneat_skip_idle"] = (bev.bev_policy(exp.sim, enc.image, enc.decision, enc.substrate_activation,
-                                                      skip_idle=True), policies["hyperneat"][1])
+    policies["hyperneat_every_state"] = (bev.bev_policy(exp.sim, enc.image, enc.decision, enc.substrate_activation),
+                                         policies["hyperneat"][1])
 
     works, first = {}, {}
     for name, (policy, params) in policies.items():
@@ -254,8 +255,8 @@ def run(args) -> None:
     for m, (tr, population, _) in fixtures.items():
         pol = tr.encoding.policy
         named[m] = ((lambda pol: lambda p, s: pol.apply(p, s, None))(pol), _lane_params(tr, population, n_trials))
-    skip = policies["hyperneat_skip_idle"][0]
-    named["hyperneat_skip_idle"] = (lambda p, s: skip.apply(p, s, None), named["hyperneat"][1])
+    every = policies["hyperneat_every_state"][0]
+    named["hyperneat_every_state"] = (lambda p, s: every.apply(p, s, None), named["hyperneat"][1])
     alone = _decision_alone(named, lanes)
     print("each decision alone on one core (ns per lane, mid-episode states): "
           + ", ".join(f"{k} {v:.0f}" for k, v in alone.items()))

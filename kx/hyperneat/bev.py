@@ -381,8 +381,8 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         or the episode is over (:func:`kx.sim.env.transition` ignores the action there), hold (keeper
         0, the stand-in holder, or the holder) without reading the image's weights. Every episode is
         the same bit for bit, and so is every decision of a lane whose holder has the ball; only the
-        answers nobody reads change. Off by default (the policy then decides on every state as the
-        dense reference does). On the trained 4v3 population of ``kx.bench policies`` a quarter less
+        answers nobody reads change. Off by default here (the policy then decides on every state as
+        the dense reference does); the run loop's HyperNEAT encoding turns it on. On the trained 4v3 population of ``kx.bench policies`` a quarter less
         per live step (about a third of live steps have the ball in flight, and a quarter of the steps
         the evaluator executes are of finished episodes).
 
