@@ -24,7 +24,8 @@ the run directory, never deleted.
 ``--seeds`` trains several runs of the config at once, differing only in seed, as one batched program
 (:mod:`kx.evolve.group`), with one progress line per generation for the group; each run gets its own
 run directory ``<workdir>/seed<s>``, the same, bit for bit but for the timings, as ``--config.seed=<s>``
-alone writes, and resumable alone or as the group::
+alone writes, and resumable alone or as the group (``--resume`` without ``--config``: each run from its
+own config.json, a transferred run with its own source)::
 
     python -m kx.train --seeds 0-15 --workdir runs/neat16          # runs/neat16/seed0 ... seed15
     python -m kx.train --seeds 0-15 --workdir runs/neat16 --resume
@@ -161,8 +162,12 @@ def main_group(args, overrides) -> int:
             raise RunError("--step: not with --seeds (resume one run with its own --workdir)")
         if args.resume and not args.workdir:
             raise RunError("--resume: name the group with --workdir")
-        cfg = load_config(args, overrides, pathlib.Path(args.workdir or ".") / f"seed{seeds[0]}")
-        cfgs = group_configs(cfg, seeds)
+        if args.resume and args.config is None:  # each run from its own config.json (its own source, ...)
+            cfgs = [group_configs(load_config(args, overrides, pathlib.Path(args.workdir) / f"seed{s}"), [s])[0]
+                    for s in seeds]
+        else:
+            cfgs = group_configs(load_config(args, overrides, pathlib.Path(args.workdir or ".") / f"seed{seeds[0]}"),
+                                 seeds)
         for c in cfgs:
             cfg_lib.validate(c)
         trainer_lib.check_group(cfgs)

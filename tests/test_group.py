@@ -286,3 +286,41 @@ def test_a_batched_group_killed_with_sigkill_resumes_bit_for_bit(tmp_path):
         alone = tmp_path / "alone" / f"seed{s}"
         run_lib.train(_cfg("neat", s, "generations=4"), alone, log=_quiet)
         assert_same_run(group / f"seed{s}", alone)
+
+
+class _Killed(Exception):
+    pass
+
+
+def test_a_batched_transfer_group_killed_mid_run_resumes_each_run_from_its_own_config(tmp_path, monkeypatch):
+    """``kx.train --seeds`` of targets each seeded by its own source (``transfer.source=.../seed{seed}``),
+    killed as it writes its third checkpoint, resumed with ``--resume`` alone (no ``--config``): each run
+    resumes from its own config.json, with its own source, and ends as the same target trained alone."""
+    seeds = (0, 3)
+    src = tmp_path / "src"
+    group_lib.train_group([_cfg("neat", s, "generations=2") for s in seeds], [src / f"seed{s}" for s in seeds],
+                          log=_quiet)
+    group = tmp_path / "group"
+    args = ["--config", "configs/neat_4v3.py", *(f"--config.{o}" for o in SMALL), "--config.population_size=12",
+            f"--config.transfer.source={src}/seed{{seed}}"]
+    saves = []
+    real_save = ckpt.save
+
+    def dying(*a, **k):
+        if len(saves) == 2:  # both runs have checkpoint 1: killed as the next one is written
+            raise _Killed
+        saves.append(a[1])
+        return real_save(*a, **k)
+
+    with monkeypatch.context() as m:
+        m.setattr(ckpt, "save", dying)
+        with pytest.raises(_Killed):
+            train_cli.main(["--seeds", "0,3", "--workdir", str(group), *args])
+    assert [ckpt.steps(group / f"seed{s}") for s in seeds] == [[1], [1]]
+    assert train_cli.main(["--seeds", "0,3", "--workdir", str(group), "--resume"]) == 0
+    for s in seeds:
+        record = json.loads((group / f"seed{s}" / "config.json").read_text())[cfg_lib.SOURCE_RECORD]
+        assert record["path"] == str((src / f"seed{s}").resolve())
+        alone = tmp_path / "alone" / f"seed{s}"
+        run_lib.train(_cfg("neat", s, f"transfer.source={src / f'seed{s}'}", task="4v3"), alone, log=_quiet)
+        assert_same_run(group / f"seed{s}", alone)
