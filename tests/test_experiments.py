@@ -20,7 +20,7 @@ from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
-from kx.experiments import measure, report, stats, sweep
+from kx.experiments import csvfile, measure, report, stats, sweep
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
@@ -48,15 +48,6 @@ def test_mann_whitney_and_the_effect_size_against_hand_computed_values_and_scipy
     assert stats.mann_whitney([0.3, 0.3], [0.3, 0.3, 0.3]).p == 1.0
     with pytest.raises(ValueError, match="finite"):
         stats.mann_whitney([0.1, math.nan], [0.2])
-    # the smallest p: complete separation; exact up to 8 a side, 2 / C(n_a + n_b, n_a) (5 against 5: 2/252)
-    assert stats.smallest_p(5, 5) == pytest.approx(2 / 252) and stats.smallest_p(1, 1) == 1.0
-    for n_a, n_b in [(3, 3), (4, 5), (7, 3), (8, 8)]:
-        assert stats.smallest_p(n_a, n_b) == pytest.approx(2 / math.comb(n_a + n_b, n_a))
-    # beyond, the normal approximation with the continuity correction: z = (n_a n_b / 2 - 0.5) / sd(U)
-    z = (10 * 10 / 2 - 0.5) / math.sqrt(10 * 10 * 21 / 12)
-    assert stats.smallest_p(10, 10) == pytest.approx(2 * scipy.stats.norm.sf(z))
-    assert stats.smallest_p(10, 10) == pytest.approx(
-        scipy.stats.mannwhitneyu(np.arange(10.0) + 10, np.arange(10.0), alternative="two-sided").pvalue)
 
 
 def test_holm_against_hand_computed_values_and_statsmodels():
@@ -96,6 +87,90 @@ def test_iqm_and_the_bootstrap_intervals():
     half = scipy.stats.t.ppf(0.975, 1) * math.sqrt(2) / math.sqrt(2)
     np.testing.assert_allclose(mean, [1.0, 2.0])
     np.testing.assert_allclose(hi - mean, [half, half])
+
+
+def test_van_elteren_against_hand_computed_values_and_scipy():
+    # by hand: target 1 a = 3, 4 against b = 1, 2: ranks 3 + 4 = 7, E = 2 * 5 / 2 = 5, Var = 2 * 2 / 12 * 5;
+    # target 2 a = 6 against b = 5, 4: rank 3, E = 1 * 4 / 2 = 2, Var = 1 * 2 / 12 * 4; weights 1/5 and 1/4
+    num = (7 - 5) / 5 + (3 - 2) / 4
+    var = (2 * 2 / 12 * 5) / 25 + (1 * 2 / 12 * 4) / 16
+    r = stats.van_elteren([[3.0, 4.0], [6.0]], [[1.0, 2.0], [5.0, 4.0]])
+    z = num / math.sqrt(var)
+    assert r.z == pytest.approx(z) and r.p == pytest.approx(2 * scipy.stats.norm.sf(z))
+    assert (r.strata, r.n_a, r.n_b) == (2, (2, 1), (2, 2)) and r.diff == pytest.approx(((3.5 - 1.5) + (6 - 4.5)) / 2)
+    assert r.poi.value == pytest.approx((1.0 + 1.0) / 2)  # a beats b in every pair of both targets
+    # one stratum, ties included: scipy's asymptotic Mann-Whitney test without the continuity correction
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        a, b = rng.normal(0.5, 0.1, 12).round(2), rng.normal(0.55, 0.1, 9).round(2)
+        ref = scipy.stats.mannwhitneyu(a, b, alternative="two-sided", method="asymptotic", use_continuity=False)
+        assert stats.van_elteren([a], [b]).p == pytest.approx(ref.pvalue, rel=1e-9)
+    # the sign follows a: b swapped, z negated
+    assert stats.van_elteren([[1.0, 2.0], [5.0, 4.0]], [[3.0, 4.0], [6.0]]).z == pytest.approx(-r.z)
+    assert stats.van_elteren([[0.3, 0.3]], [[0.3]]).p == 1.0  # nothing varies: no evidence
+    with pytest.raises(ValueError, match="every stratum needs values"):
+        stats.van_elteren([[0.1], []], [[0.2], [0.3]])
+
+
+def _rejections(rng, shift: float, runs: int, sims: int, level: float) -> float:
+    """How often van Elteren's test rejects at ``level`` on fresh samples: three targets of ``runs`` runs a
+    cell, b ~ N(0, 1) and a ~ N(shift, 1) in every target."""
+    strata = [(rng.normal(shift, 1.0, (sims, runs)), rng.normal(0.0, 1.0, (sims, runs))) for _ in range(3)]
+    z = stats.van_elteren_z(strata)
+    return float((2 * scipy.stats.norm.sf(np.abs(z)) < level).mean())
+
+
+def test_the_pooled_test_rejects_identical_distributions_at_the_nominal_rate():
+    rng = np.random.default_rng(4)
+    for level in (0.05, 0.01):
+        rate = _rejections(rng, 0.0, 20, 20000, level)
+        assert abs(rate - level) < 4 * math.sqrt(level * (1 - level) / 20000) + 0.002, (level, rate)
+    # runs of unequal counts and heavy ties (fitness values of short episodes): still nominal
+    strata = [(rng.integers(0, 4, (20000, n)).astype(float), rng.integers(0, 4, (20000, m)).astype(float))
+              for n, m in ((8, 12), (20, 20), (5, 30))]
+    z = stats.van_elteren_z(strata)
+    assert abs((2 * scipy.stats.norm.sf(np.abs(z)) < 0.05).mean() - 0.05) < 0.008
+
+
+def test_the_power_estimate_finds_a_known_shift_at_the_stated_rate():
+    """power(): resampling the observed runs at the observed effect. With many observed runs from N(0.6, 1)
+    against N(0, 1), its estimate at 20 runs a cell matches the rate at which the test rejects fresh samples
+    of 20 from the true distributions, and runs_needed finds the smallest count that reaches 80%."""
+    rng = np.random.default_rng(5)
+    level = 0.05 / 9
+    a_by = [rng.normal(0.6, 1.0, 4000) for _ in range(3)]
+    b_by = [rng.normal(0.0, 1.0, 4000) for _ in range(3)]
+    truth = {n: _rejections(rng, 0.6, n, 4000, level) for n in (10, 20, 30)}
+    for n, rate in truth.items():
+        assert stats.power(a_by, b_by, level, runs=n) == pytest.approx(rate, abs=0.05), n
+    need = stats.runs_needed(a_by, b_by, level, 0.8, (5, 10, 15, 20, 25, 30, 35, 40))
+    assert truth[10] < 0.8 < truth[30] and need in (20, 25, 30)
+    assert stats.power(a_by, b_by, level, runs=need) >= 0.8 > stats.power(a_by, b_by, level, runs=need - 5)
+    # no effect: power stays at the level, and no run count reaches 80%
+    null = [rng.normal(0.0, 1.0, 4000) for _ in range(3)]
+    assert stats.power(null, b_by, 0.05, runs=20) == pytest.approx(0.05, abs=0.02)
+    assert stats.runs_needed(null, b_by, level, 0.8, (10, 50)) is None
+    # with each cell's own count (runs=None) and seeded: the same figure again
+    small = [a[:10] for a in a_by], [b[:10] for b in b_by]
+    assert stats.power(*small, level) == stats.power(*small, level, runs=10)
+
+
+def test_the_pooled_improvement_interval_is_a_stratified_bootstrap():
+    rng = np.random.default_rng(6)
+    a_by = [rng.normal(0.5, 0.1, 10), rng.normal(0.6, 0.1, 12)]
+    b_by = [rng.normal(0.45, 0.1, 10), rng.normal(0.6, 0.1, 8)]
+    ci = stats.pooled_improvement(a_by, b_by)
+    assert ci.value == pytest.approx(np.mean([stats.vargha_delaney(a, b) for a, b in zip(a_by, b_by)]))
+    def poi(a, b, axis):  # P(a > b) + P(a = b) / 2 over all pairs, per resample
+        a, b = np.moveaxis(a, axis, -1)[..., :, None], np.moveaxis(b, axis, -1)[..., None, :]
+        return ((a > b).mean(axis=(-2, -1)) + 0.5 * (a == b).mean(axis=(-2, -1)))
+
+    ref = scipy.stats.bootstrap((a_by[0], b_by[0], a_by[1], b_by[1]),
+                                lambda a0, b0, a1, b1, axis=-1: (poi(a0, b0, axis) + poi(a1, b1, axis)) / 2,
+                                n_resamples=stats.RESAMPLES, method="percentile", vectorized=True, paired=False,
+                                rng=np.random.default_rng(stats.BOOTSTRAP_SEED))
+    assert (ci.low, ci.high) == pytest.approx((ref.confidence_interval.low, ref.confidence_interval.high))
+    assert ci.low < ci.value < ci.high
 
 
 # ------------------------------------------------------------------------------------------------- protocol
@@ -138,7 +213,7 @@ def test_every_committed_table3_run_is_built_again_as_it_ran(tmp_path):
     spec = json.loads((committed / "protocol.json").read_text())
     protocol = t3.Protocol(**{**spec, "overrides": tuple(spec["overrides"])})
     rows = t3.read_results(committed / "results.csv")
-    assert len(rows) == 138
+    assert len(rows) >= 138
     cfgs = {t3.row_key(r): t3.config(protocol, t3.RunSpec(*t3.row_key(r)), tmp_path) for r in rows}
     for r in rows:
         run = t3.RunSpec(*t3.row_key(r))
@@ -238,8 +313,102 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     assert "| Fitness transfer | NEAT |" in md and "0.482 (0.059)" in md  # ours beside the paper's
     assert "NEAT 4v3: Fitness transfer vs No transfer" in md and "Policy transfer beats evolving from scratch" in md
     assert str(tmp_path) not in md
-    # one run per cell: the report says that no comparison can be significant, rather than "no difference"
-    assert "no comparison of this table can reach significance" in md and "not testable with these runs" in md
+    # two runs a cell decide nothing: the verdict says so, with the estimate, the power and the runs needed
+    assert "- max_fitness: **not decided**." in md and "- test_fitness: **not decided**." in md
+    line = next(ln for ln in md.splitlines() if ln.startswith("  - NEAT: Fitness transfer vs No transfer (4v3): "))
+    assert re.search(r"not decided; P\(a > b\) = [01]\.\d\d \[.*\] \((the paper's way|against the paper|neither "
+                     r"way)\), mean difference [+-]\d\.\d{3}, Holm p = .*; power \d+% with these runs, (> )?\d+ runs a "
+                     r"cell for 80%\.$", line), line
+    assert "HyperNEAT beats NEAT.**\n- max_fitness: not measured in these runs." in md
+
+
+def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
+    """A protocol folder as a fresh clone has it (results.csv and protocol.json, no run directories) extends to
+    5v3: the fitness source is trained again, reproduces its row, and seeds the new target. A source whose row
+    the protocol's config would not give now, or test states this code would not draw, are refused before
+    any compute; a re-run that does not reproduce its row is set aside and seeds nothing."""
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
+    out = tmp_path / "t3"
+    t3.run(out, protocol, t3.plan(("neat",), ("4v3",), ("fitness",), runs=1), log=lambda s: None)
+    committed = {n: (out / n).read_bytes() for n in ("results.csv", "protocol.json")}
+    assert set(json.loads(committed["protocol.json"])) >= {"test_states", "design", "seed"}
+    shutil.rmtree(out / "runs")
+    to_5v3 = t3.plan(("neat",), ("5v3",), ("fitness",), runs=1)
+    rows = t3.read_results(out / "results.csv")
+    source = next(r for r in rows if r["phase"] == "source")
+
+    def refused(match, **changes):
+        edited = [dict(r, **changes) if r is source else r for r in rows]
+        csvfile.write(out / "results.csv", t3.FIELDS, edited)
+        with pytest.raises(t3.RunError, match=match):
+            t3.run(out, protocol, to_5v3, log=lambda s: None)
+        assert not (out / "runs").exists()  # nothing ran
+        (out / "results.csv").write_bytes(committed["results.csv"])
+
+    refused(r"neat 3v2 source \(fitness\) run 0: its run directory .* is missing, and its row .*seed recorded 1,",
+            seed="1")
+    refused(r"generations recorded 3, now 2", generations="3")
+    states = json.loads(committed["protocol.json"])
+    states["test_states"]["sha256"]["5v3"] = "sha256:0"
+    outputs_json = out / "protocol.json"
+    outputs_json.write_text(json.dumps(states))
+    with pytest.raises(t3.RunError, match="test_states: this code draws other test states .*tasks 5v3"):
+        t3.run(out, protocol, to_5v3, log=lambda s: None)
+    assert not (out / "runs").exists()
+    outputs_json.write_bytes(committed["protocol.json"])
+
+    lines = []
+    t3.run(out, protocol, to_5v3, log=lines.append)
+    assert "1 finished sources without a run directory trained again first" in lines[0]
+    assert any("(again)] gen 2/2" in ln and ln.endswith("(from 1 finished runs; 1 runs of kinds with none finished "
+                                                       "not counted)") for ln in lines)
+    assert any(ln.endswith("neat 3v2 source (fitness) run 0: trained again, its row reproduced (every column but "
+                           "the times)") for ln in lines)
+    after = (out / "results.csv").read_bytes()
+    assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 4  # the header, 2 rows and 5v3's
+    assert t3.read_results(out / "results.csv")[-1]["target"] == "5v3"
+    assert (out / "protocol.json").read_bytes() == committed["protocol.json"]
+
+    # a re-run that differs from its row (here the row's max_fitness was edited): set aside, no target runs
+    shutil.rmtree(out / "runs" / "neat" / "source-fitness")
+    shutil.rmtree(out / "runs" / "neat" / "target-fitness" / "5v3")
+    rows = t3.read_results(out / "results.csv")[:2]
+    source = rows[0] if rows[0]["phase"] == "source" else rows[1]
+    csvfile.write(out / "results.csv", t3.FIELDS, [dict(r, max_fitness="0.5") if r is source else r for r in rows])
+    with pytest.raises(t3.RunError, match=r"trained again to seed its targets, it does not reproduce its row .*"
+                                          r"max_fitness recorded 0.5, now .*set aside in .*run00.rejected"):
+        t3.run(out, protocol, to_5v3, log=lambda s: None)
+    assert (out / "runs" / "neat" / "source-fitness" / "3v2" / "run00.rejected" / "config.json").is_file()
+    assert not (out / "runs" / "neat" / "source-fitness" / "3v2" / "run00").exists()
+    assert not (out / "runs" / "neat" / "target-fitness" / "5v3").exists()
+
+
+def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeypatch):
+    """The protocol's ETA: each run to go at the mean wall time of the finished runs of its method, phase
+    and task (results.csv's, then this process's), the current group less what it has run; kinds with no
+    finished run are counted apart, not guessed."""
+    clock = [100.0]
+    monkeypatch.setattr(t3.time, "perf_counter", lambda: clock[0])
+    row = lambda m, p, t, w: {"method": m, "phase": p, "target": t, "wall_seconds": str(w)}  # noqa: E731
+    rows = [row("neat", "target", "5v3", 100), row("neat", "target", "5v3", 140), row("neat", "source", "3v2", 20),
+            row("neat", "target", "4v3", 50)]
+    spec = lambda p, t, i: t3.RunSpec("neat", "none" if p == "target" else "fitness", p, t, i)  # noqa: E731
+    todo = [[spec("target", "5v3", 0), spec("target", "5v3", 1)], [spec("source", "3v2", 2)],
+            [spec("target", "6v4", 0)], [spec("target", "5v3", 2)]]
+    lines = []
+    progress = t3._Progress(lines.append, todo, 3, 9, rows)
+    progress.start(todo[0][0], "group")
+    clock[0] += 30.0  # the current group (2 x 120 s) has run 30 s: 210 s left; then 20 and 120; 6v4 unknown
+    assert progress.eta() == (210.0 + 20.0 + 120.0, 3, 1)
+    progress.line("gen 3/50 2 runs  best 0.5  mean 0.2")
+    assert lines == ["[3/9 runs | group] gen 3/50  best 0.5  protocol ETA 5.8 min (from 3 finished runs; 1 runs of "
+                     "kinds with none finished not counted)"]
+    progress.finish(0)
+    progress.add(row("neat", "target", "5v3", 60))  # a run of this process: its kind's mean falls to 100 s
+    progress.start(todo[1][0], "next")
+    assert progress.eta() == (20.0 + 100.0, 4, 1)
+    assert t3._Progress(lines.append, [[spec("target", "6v4", 1)]], 0, 1, rows).eta_text().startswith(
+        "  protocol ETA unknown")
 
 
 def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):

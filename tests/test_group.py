@@ -292,6 +292,7 @@ class _Killed(Exception):
     pass
 
 
+@pytest.mark.slow  # ~40 s
 def test_a_batched_transfer_group_killed_mid_run_resumes_each_run_from_its_own_config(tmp_path, monkeypatch):
     """``kx.train --seeds`` of targets each seeded by its own source (``transfer.source=.../seed{seed}``),
     killed as it writes its third checkpoint, resumed with ``--resume`` alone (no ``--config``): each run

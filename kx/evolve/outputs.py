@@ -77,7 +77,7 @@ def append_row(path: pathlib.Path, row: dict, fields) -> None:
 
 
 def format_seconds(s: float) -> str:
-    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min"
+    return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
 
 
 def progress_line(row: dict, total: int, eta: float | None, encoding=None) -> str:

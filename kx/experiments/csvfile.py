@@ -11,7 +11,8 @@ from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
 
 
-def _cell(v) -> str:
+def cell_text(v) -> str:
+    """A value as results files write it (a float in 9 significant digits, float32's round trip)."""
     return format(v, ".9g") if isinstance(v, float) else str(v)  # float32 values round-trip in 9 digits
 
 
@@ -35,5 +36,5 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
     w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: _cell(r[k]) for k in fields})
+        w.writerow({k: cell_text(r[k]) for k in fields})
     run_outputs.write_text(path, buf.getvalue())

@@ -17,9 +17,9 @@ from typing import Callable, Iterator
 
 import ml_collections
 
+from kx.evolve import checkpoint, streams
 from kx.evolve import group as group_lib
 from kx.evolve import run as run_lib
-from kx.evolve import streams
 from kx.evolve.encoding import stack
 from kx.sim import env
 
@@ -49,6 +49,12 @@ def champion_on_test(run_dir: str | pathlib.Path, test_seed: int,
 def started(run_dir: pathlib.Path) -> bool:
     """Whether ``run_dir`` holds a run that trains on from its checkpoint (its config.json is written)."""
     return (pathlib.Path(run_dir) / "config.json").is_file()
+
+
+def finished(run_dir: pathlib.Path, generations: int) -> bool:
+    """Whether ``run_dir`` holds a finished run of ``generations`` generations: its config.json and the
+    checkpoint written after its last generation."""
+    return started(run_dir) and generations in checkpoint.steps(pathlib.Path(run_dir))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -146,3 +146,110 @@ def mean_band(curves) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return mean, mean.copy(), mean.copy()
     half = scipy.stats.t.ppf(0.975, n - 1) * c.std(axis=0, ddof=1) / math.sqrt(n)
     return mean, mean - half, mean + half
+
+
+# ------------------------------------------------------------------------ pooled over targets, and power
+
+#: resamples of the power estimate at each run count
+POWER_RESAMPLES = 1000
+
+
+def _ranks_and_ties(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``x [R, n]`` against ``y [R, m]``: the sum of ``x``'s midranks in the pooled row, and the
+    tie term ``sum(t^3 - t)`` over the pooled row's groups of equal values."""
+    both = np.concatenate([x, y], axis=-1)
+    ranks = scipy.stats.rankdata(both, axis=-1)
+    s = np.sort(both, axis=-1)
+    rows, width = s.shape
+    group = np.concatenate([np.zeros((rows, 1), np.int64), np.cumsum(s[:, 1:] != s[:, :-1], axis=-1)], axis=-1)
+    counts = np.bincount((np.arange(rows)[:, None] * width + group).ravel(), minlength=rows * width)
+    counts = counts.reshape(rows, width).astype(np.float64)
+    return ranks[:, :x.shape[1]].sum(axis=-1), (counts**3 - counts).sum(axis=-1)
+
+
+def van_elteren_z(strata: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """van Elteren's z (:func:`van_elteren`) of ``R`` data sets at once, over strata of ``(x [R, n_t], y [R,
+    m_t])``: ``[R]``, NaN where no stratum varies."""
+    num = den = 0.0
+    for x, y in strata:
+        n, m = x.shape[-1], y.shape[-1]
+        big = n + m
+        w, ties = _ranks_and_ties(x, y)
+        var = n * m / 12.0 * ((big + 1) - ties / (big * (big - 1)))
+        weight = 1.0 / (big + 1)
+        num = num + weight * (w - n * (big + 1) / 2.0)
+        den = den + weight**2 * var
+    den = np.asarray(den, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0, num / np.sqrt(np.where(den > 0, den, 1.0)), np.nan)
+
+
+@dataclasses.dataclass(frozen=True)
+class Pooled:
+    """``a`` against ``b`` over strata (targets): van Elteren's z and two-sided p, the probability of
+    improvement averaged over the strata with its stratified-bootstrap 95% interval, and the mean of the
+    strata's mean differences."""
+
+    strata: int
+    n_a: tuple[int, ...]
+    n_b: tuple[int, ...]
+    z: float
+    p: float
+    poi: Interval
+    diff: float
+
+
+def _strata(a_by, b_by) -> list[tuple[np.ndarray, np.ndarray]]:
+    strata = [(_values(a), _values(b)) for a, b in zip(a_by, b_by, strict=True)]
+    if not strata or any(a.size == 0 or b.size == 0 for a, b in strata):
+        sizes = [(a.size, b.size) for a, b in strata]
+        raise ValueError(f"every stratum needs values in both samples, got sizes {sizes}")
+    return strata
+
+
+def van_elteren(a_by, b_by) -> Pooled:
+    """van Elteren's stratified rank-sum test of ``a`` against ``b``, one stratum per pair ``(a_by[t],
+    b_by[t])`` (a target's runs of two setups): the Wilcoxon rank-sum statistics of the strata (midranks),
+    weighted by ``1 / (N_t + 1)`` (``N_t`` the stratum's runs), summed and standardised with the tie-corrected
+    variance; two-sided p from the normal distribution, no continuity correction (one stratum: scipy's
+    asymptotic Mann-Whitney test without it). p is 1 where no stratum has two different values."""
+    strata = _strata(a_by, b_by)
+    z = float(van_elteren_z([(a[None], b[None]) for a, b in strata])[0])
+    p = 1.0 if math.isnan(z) else float(2 * scipy.stats.norm.sf(abs(z)))
+    return Pooled(len(strata), tuple(a.size for a, _ in strata), tuple(b.size for _, b in strata),
+                  0.0 if math.isnan(z) else z, p, pooled_improvement(a_by, b_by),
+                  float(np.mean([a.mean() - b.mean() for a, b in strata])))
+
+
+def pooled_improvement(a_by, b_by) -> Interval:
+    """The probability of improvement of ``a`` over ``b`` averaged over the strata, with its stratified
+    bootstrap 95% interval (each cell's runs resampled on their own, as rliable does per task)."""
+    strata = _strata(a_by, b_by)
+    flat = tuple(v for pair in strata for v in pair)
+
+    def stat(*samples, axis=-1):
+        return np.mean([_poi(samples[2 * i], samples[2 * i + 1], axis=axis) for i in range(len(samples) // 2)], axis=0)
+
+    value = float(np.mean([vargha_delaney(a, b) for a, b in strata]))
+    return _bootstrap(flat, stat, value)
+
+
+def power(a_by, b_by, level: float, runs: int | None = None, resamples: int = POWER_RESAMPLES,
+          seed: int = BOOTSTRAP_SEED) -> float:
+    """The probability that :func:`van_elteren` gives p < ``level`` at the observed effect: every cell's runs
+    resampled with replacement to ``runs`` runs (``None``: each cell's own count), ``resamples`` times."""
+    strata = _strata(a_by, b_by)
+    rng = np.random.default_rng(seed)
+    draw = lambda v: v[rng.integers(0, v.size, size=(resamples, runs or v.size))]  # noqa: E731
+    z = van_elteren_z([(draw(a), draw(b)) for a, b in strata])
+    p = np.where(np.isnan(z), 1.0, 2 * scipy.stats.norm.sf(np.abs(np.nan_to_num(z))))
+    return float((p < level).mean())
+
+
+def runs_needed(a_by, b_by, level: float, goal: float, candidates) -> int | None:
+    """The smallest run count of ``candidates`` (ascending) at which :func:`power` reaches ``goal``; ``None``
+    if none does."""
+    for n in candidates:
+        if power(a_by, b_by, level, runs=n) >= goal:
+            return int(n)
+    return None

@@ -44,7 +44,7 @@ import ml_collections
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, measure
+from kx.experiments import csvfile, design, measure
 
 METHODS = ("neat", "hyperneat", "cma_es")
 SOURCE_TASK = "3v2"
@@ -73,6 +73,11 @@ FIELDS = ("method", "setup", "phase", "target", "run", "seed", "source_seed", "o
           "champion_generation", "protocol_seed", "wall_seconds", "generation_seconds", "best_so_far",
           "best_validation")
 CURVES = ("best_so_far", "best_validation")
+#: the columns a run's config fixes: a recorded row is checked against them before any compute
+PLANNED = ("seed", "source_seed", "objective", "population", "trials", "generations", "episodes", "source_episodes",
+           "test_trials", "protocol_seed")
+#: the columns a run trained again must reproduce exactly: every one but the times
+REPRODUCED = tuple(f for f in FIELDS if f not in ("wall_seconds", "generation_seconds"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -192,8 +197,9 @@ def curve(row: dict, name: str) -> list[float]:
 
 # ------------------------------------------------------------------------------------------------ running
 
-def _open(out: pathlib.Path, protocol: Protocol) -> None:
-    """Creates ``out`` with its protocol.json, or checks that an existing one is the same protocol."""
+def _open(out: pathlib.Path, protocol: Protocol) -> bool:
+    """Creates ``out`` with its protocol.json, or checks that an existing one is the same protocol; whether it
+    created the file."""
     out.mkdir(parents=True, exist_ok=True)
     path = out / "protocol.json"
     want = protocol.to_json()
@@ -203,28 +209,34 @@ def _open(out: pathlib.Path, protocol: Protocol) -> None:
         if diff:
             raise RunError(f"{out} holds another protocol ({'; '.join(diff)}): use another --out, or the same "
                            "parameters to add runs to it")
-    else:
-        run_outputs.write_json(path, want)
+        return False
+    run_outputs.write_json(path, want)
+    return True
+
+
+def planned(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> dict:
+    """The :data:`PLANNED` columns of the run of ``spec``, from its config (:func:`config`)."""
+    cfg = config(protocol, spec, out)
+    src = source_of(spec)
+    src_evals = 0
+    if src is not None:
+        scfg = config(protocol, src, out)
+        src_evals = scfg.generations * scfg.population_size * scfg.trials
+    return {"seed": cfg.seed, "source_seed": "" if src is None else run_seed(protocol.seed, *src.key),
+            "objective": cfg.objective, "population": cfg.population_size, "trials": cfg.trials,
+            "generations": cfg.generations, "episodes": cfg.generations * cfg.population_size * cfg.trials,
+            "source_episodes": src_evals, "test_trials": protocol.test_trials, "protocol_seed": protocol.seed}
 
 
 def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: measure.Finished) -> dict:
     """The results row of the finished run of ``spec``, measured on the protocol's test states of its task
     (:func:`kx.experiments.measure.train_and_measure`): its metrics.csv curves, its validated champion's test
     fitness, and its share of its batched group's wall time and of the generations' times."""
-    cfg, rows, share = finished.trainer.cfg, finished.metrics, finished.share
-    src = source_of(spec)
-    src_evals = 0
-    if src is not None:
-        scfg = config(protocol, src, out)
-        src_evals = scfg.generations * scfg.population_size * scfg.trials
+    rows, share = finished.metrics, finished.share
     return {
         "method": spec.method, "setup": spec.setup, "phase": spec.phase, "target": spec.target, "run": spec.run,
-        "seed": cfg.seed, "source_seed": "" if src is None else run_seed(protocol.seed, *src.key),
-        "objective": cfg.objective, "population": cfg.population_size, "trials": cfg.trials,
-        "generations": cfg.generations, "episodes": cfg.generations * cfg.population_size * cfg.trials,
-        "source_episodes": src_evals, "max_fitness": finished.max_fitness,
-        "test_fitness": finished.test, "test_trials": protocol.test_trials,
-        "champion_generation": int(finished.state.champion_generation), "protocol_seed": protocol.seed,
+        **planned(protocol, spec, out), "max_fitness": finished.max_fitness, "test_fitness": finished.test,
+        "champion_generation": int(finished.state.champion_generation),
         "wall_seconds": finished.wall_seconds,
         "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows) / share, 3),
         "best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
@@ -232,51 +244,86 @@ def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: 
     }
 
 
-class _Progress:
-    """The protocol's progress line: runs done of total, the current run's generation, an ETA from the
-    measured seconds per generation of each (method, task)."""
+def differences(recorded: dict, row: dict, fields: Iterable[str]) -> list[str]:
+    """Where ``row`` (values) differs from the ``recorded`` row (results.csv's strings) in ``fields``: one
+    phrase per column, a curve by its first differing generation."""
+    out = []
+    for k in fields:
+        have, now = recorded[k], csvfile.cell_text(row[k])
+        if have == now:
+            continue
+        if k in CURVES:
+            a, b = have.split(), now.split()
+            g = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+            out.append(f"{k} from generation {g + 1} (recorded {' '.join(a[g:g + 1]) or 'nothing'}, now "
+                       f"{' '.join(b[g:g + 1]) or 'nothing'})")
+        else:
+            out.append(f"{k} recorded {have or '(empty)'}, now {now or '(empty)'}")
+    return out
 
-    def __init__(self, log, todo: list[tuple[RunSpec, int]], done: int, total: int):
-        self.log, self.todo, self.done, self.total = log, list(todo), done, total
-        self.per_gen: dict[tuple[str, str], list[float]] = {}
-        self.last = None
+
+def _kind(row_or_spec) -> tuple[str, str, str]:
+    """What a run's cost depends on: its method, phase and task."""
+    if isinstance(row_or_spec, RunSpec):
+        return row_or_spec.method, row_or_spec.phase, row_or_spec.target
+    return row_or_spec["method"], row_or_spec["phase"], row_or_spec["target"]
+
+
+class _Progress:
+    """The protocol's progress line: runs done of total, the current group's generation, and an ETA.
+
+    The ETA costs every run still to go at the mean wall time per run (``wall_seconds``: its share of its
+    group's time) of the finished runs of its method, phase and task in results.csv, those of this
+    process included; the current group is charged what it has left of its runs' mean (at least
+    nothing). A run of a kind with no finished run is not costed, and the line says how many such runs
+    there are and on how many finished runs the estimate rests. (Extrapolating this process's first
+    generations instead underestimates: their episodes are short.)"""
+
+    def __init__(self, log, todo: list[list[RunSpec]], done: int, total: int, rows: list[dict]):
+        self.log, self.todo, self.done, self.total = log, [list(c) for c in todo], done, total
+        self.walls: dict[tuple, list[float]] = {}
+        for r in rows:
+            self.add(r)
+        self.t0 = time.perf_counter()
         self.current = None
 
+    def add(self, row: dict) -> None:
+        self.walls.setdefault(_kind(row), []).append(float(row["wall_seconds"]))
+
     def start(self, spec: RunSpec, what: str | None = None):
-        self.current, self.last, self.what = spec, None, what or spec.describe()
+        self.current, self.what, self.t0 = spec, what or spec.describe(), time.perf_counter()
 
     def finish(self, n: int = 1):
         self.todo.pop(0)
         self.done += n
 
-    def _rate(self, method: str, task: str) -> float | None:
-        if self.per_gen.get((method, task)):
-            return sum(self.per_gen[(method, task)]) / len(self.per_gen[(method, task)])
-        same = [v for (m, _), vs in self.per_gen.items() if m == method for v in vs]
-        pooled = same or [v for vs in self.per_gen.values() for v in vs]
-        return sum(pooled) / len(pooled) if pooled else None
+    def eta(self) -> tuple[float, int, int]:
+        """``(seconds, finished runs it rests on, runs not costed)`` for the groups still to go."""
+        seconds, basis, unknown = 0.0, set(), 0
+        for i, chunk in enumerate(self.todo):
+            cost = 0.0
+            for spec in chunk:
+                walls = self.walls.get(_kind(spec))
+                if not walls:
+                    unknown += 1
+                    continue
+                basis.add(_kind(spec))
+                cost += sum(walls) / len(walls)
+            seconds += max(cost - (time.perf_counter() - self.t0), 0.0) if i == 0 else cost
+        return seconds, sum(len(self.walls[k]) for k in basis), unknown
 
-    def eta(self, generation_done: int) -> float | None:
-        total = 0.0
-        for i, (spec, gens) in enumerate(self.todo):
-            rate = self._rate(spec.method, spec.target)
-            if rate is None:
-                return None
-            total += rate * (gens - generation_done if i == 0 else gens)
-        return total
+    def eta_text(self) -> str:
+        seconds, basis, unknown = self.eta()
+        if not basis:
+            return f"  protocol ETA unknown (no finished run of the kinds to go; {unknown} runs)"
+        text = f"  protocol ETA {run_outputs.format_seconds(seconds)} (from {basis} finished runs"
+        return text + (f"; {unknown} runs of kinds with none finished not counted)" if unknown else ")")
 
     def line(self, text: str):
-        spec = self.current
         m = re.match(r"gen\s+(\d+)/(\d+)\s+(?:\d+ runs\s+)?best\s+(\S+)", text)
         if m:
-            now = time.perf_counter()
-            if self.last is not None:  # the first generation of a process compiles: not a rate
-                self.per_gen.setdefault((spec.method, spec.target), []).append(now - self.last)
-            self.last = now
-            eta = self.eta(int(m.group(1)))
-            when = "" if eta is None else f"  protocol ETA {run_outputs.format_seconds(eta)}"
             self.log(f"[{self.done}/{self.total} runs | {self.what}] gen {m.group(1)}/{m.group(2)}  "
-                     f"best {m.group(3)}{when}")
+                     f"best {m.group(3)}{self.eta_text()}")
         elif not re.sub(r"^\[seed \d+\] ", "", text).startswith(("validation states", "kx.train:", "done:",
                                                                      "transfer:")):
             self.log(f"[{self.done}/{self.total} runs | {self.what}] {text}")
@@ -306,44 +353,100 @@ def _span(specs: list[RunSpec]) -> str:
     return specs[0].describe().rsplit(" run ", 1)[0] + " " + which
 
 
+def _set_aside(d: pathlib.Path) -> pathlib.Path:
+    """Moves a run directory that did not reproduce its row out of the protocol's way (never deleted)."""
+    aside = d.with_name(d.name + ".rejected")
+    n = 1
+    while aside.exists():
+        n += 1
+        aside = d.with_name(f"{d.name}.rejected{n}")
+    d.rename(aside)
+    return aside
+
+
+def missing_sources(out: pathlib.Path, protocol: Protocol, specs: list[RunSpec], recorded: dict) -> list[RunSpec]:
+    """The finished sources (a row in results.csv) of the unfinished transfer runs of ``specs`` whose run
+    directory does not hold their final checkpoint (a fresh clone has only results.csv): they are trained
+    again before their targets, and must reproduce their rows."""
+    out_specs = []
+    for spec in specs:
+        src = source_of(spec)
+        if (src is None or spec.key in recorded or src.key not in recorded or src in out_specs
+                or measure.finished(run_dir(out, src), config(protocol, src, out).generations)):
+            continue
+        out_specs.append(src)
+    return out_specs
+
+
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
         log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
     """Runs every run of ``specs`` not yet in ``out/results.csv`` (a transfer run's source first, even if
     not selected), in batched groups of up to ``batch`` runs of one cell (1: one by one), each run resumed
     from its checkpoint if a previous protocol was killed during it; appends each finished run's row.
-    Returns the rows of ``specs``."""
+    Returns the rows of ``specs``.
+
+    A folder holding only results.csv and protocol.json (a fresh clone) extends: a finished source that an
+    unfinished target needs and whose run directory is missing is trained again first (runs are
+    deterministic) and must reproduce its row in every column but the times, or the protocol stops there,
+    naming the run and the columns, with the re-run set aside as ``<run>.rejected``. Before any compute,
+    every config is checked, the protocol.json is the same protocol with the same test states
+    (:func:`kx.experiments.design.check_folder`), and each such source's row is what its config gives now
+    (:data:`PLANNED`)."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     for spec in specs:  # every config checked before any compute
         config(protocol, spec, out)
-    _open(out, protocol)
     results_path = out / "results.csv"
     rows = read_results(results_path)
-    have = {row_key(r) for r in rows}
+    recorded = {row_key(r): r for r in rows}
+    rebuild = missing_sources(out, protocol, specs, recorded)
+    for src in rebuild:  # a recorded source must be the run its config gives now, before anything trains
+        diff = differences(recorded[src.key], planned(protocol, src, out), PLANNED)
+        if diff:
+            raise RunError(f"{src.describe()}: its run directory {run_dir(out, src)} is missing, and its row in "
+                           f"{results_path} is not the run the protocol's config gives now ({'; '.join(diff)}), so "
+                           "it cannot be trained again to seed its targets: nothing was run")
+    created = _open(out, protocol)
+    design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log)
     needed: list[RunSpec] = []
     for spec in specs:
         src = source_of(spec)
         for s in ((src,) if src is not None else ()) + (spec,):
-            if s.key not in have and s not in needed:
+            if s.key not in recorded and s not in needed:
                 needed.append(s)
     total = len({s.key for s in specs} | {s.key for s in needed})
-    chunks = groups(needed, batch)
-    progress = _Progress(log, [(c[0], config(protocol, c[0], out).generations) for c in chunks],
-                         total - len(needed), total)
+    again, chunks = groups(rebuild, batch), groups(needed, batch)
+    progress = _Progress(log, again + chunks, total - len(needed), total, rows)
     grouped = f" in {len(chunks)} groups of up to {batch}" if batch > 1 and chunks else ""
-    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run{grouped} -> {out}")
-    for chunk in chunks:
+    redo = f"; {len(rebuild)} finished sources without a run directory trained again first" if rebuild else ""
+    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run{grouped}{redo} -> {out}")
+    for chunk in again + chunks:
+        reproduce = chunk[0] in rebuild
         cfgs = [config(protocol, spec, out) for spec in chunk]
         dirs = [run_dir(out, spec) for spec in chunk]
         resumed = sum(measure.started(d) for d in dirs)
-        progress.start(chunk[0], _span(chunk))
-        log(f"[{progress.done}/{total} runs] {_span(chunk)}: seeds {', '.join(str(c.seed) for c in cfgs)}, "
-            f"{cfgs[0].generations} generations" + (f" ({resumed} resumed)" if resumed else ""))
+        progress.start(chunk[0], _span(chunk) + (" (again)" if reproduce else ""))
+        log(f"[{progress.done}/{total} runs] {_span(chunk)}{' again, to seed its targets' if reproduce else ''}: "
+            f"seeds {', '.join(str(c.seed) for c in cfgs)}, {cfgs[0].generations} generations"
+            + (f" ({resumed} resumed)" if resumed else ""))
         measured = measure.train_and_measure(cfgs, dirs, protocol.seed, protocol.test_trials, log=progress.line)
         for spec, finished in zip(chunk, measured):
             row = results_row(protocol, spec, out, finished)
+            if reproduce:
+                diff = differences(recorded[spec.key], row, REPRODUCED)
+                if diff:
+                    aside = _set_aside(run_dir(out, spec))
+                    raise RunError(f"{spec.describe()}: trained again to seed its targets, it does not reproduce "
+                                   f"its row of {results_path} ({'; '.join(diff)}); the re-run is set aside in "
+                                   f"{aside}, and no target of it was run (the code or the machine gives other "
+                                   "results than those recorded: run the folder's targets where it was made, or "
+                                   "the whole protocol again in a new folder)")
+                log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced (every "
+                    "column but the times)")
+                continue
             rows.append(row)
+            progress.add(row)
             csvfile.write(results_path, FIELDS, rows)
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
                 f"{row['test_fitness']:.4f}")

@@ -382,9 +382,10 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         0, the stand-in holder, or the holder) without reading the image's weights. Every episode is
         the same bit for bit, and so is every decision of a lane whose holder has the ball; only the
         answers nobody reads change. Off by default here (the policy then decides on every state as
-        the dense reference does); the run loop's HyperNEAT encoding turns it on. On the trained 4v3 population of ``kx.bench policies`` a quarter less
-        per live step (about a third of live steps have the ball in flight, and a quarter of the steps
-        the evaluator executes are of finished episodes).
+        the dense reference does); the run loop's HyperNEAT encoding turns it on. On the trained 4v3
+        population of ``kx.bench policies`` a quarter less per live step (about a third of live steps
+        have the ball in flight, and a quarter of the steps the evaluator executes are of finished
+        episodes).
 
     ``apply(Shared({"w": [G, N, N], "b": [G, N]}, index [*B]), state, key)`` returns a keeper index per
     lane (the holder's own index holds), also when nobody holds the ball (then keeper 0 stands in for the

@@ -1,0 +1,169 @@
+"""Table 3's statistical design, fixed before the runs (SPEC section 6), and the identity of a protocol's
+test states: both written into ``DIR/protocol.json`` and checked whenever a folder is extended.
+
+**The families.** Every comparison is ``a`` against ``b`` in the direction the paper claims (``a`` better),
+on one measure (:data:`MEASURES`), pooled over the targets the folder holds runs of:
+
+* *primary*, the paper's own comparisons: transfer against none for each method and transfer setup;
+  fitness + NS transfer against fitness transfer for each method; HyperNEAT against NEAT for each of
+  the paper's three setups (9 comparisons). Holm's correction over these 9, per measure;
+* *secondary*, exploratory: the fourth setup (no transfer with fitness + NS) against no transfer (novelty
+  without transfer); fitness + NS transfer against the fourth setup (both run the hybrid, so they differ
+  in the transfer alone: the comparison the paper's design confounds); HyperNEAT against NEAT in the
+  fourth setup; and CMA-ES's transfer against none. Holm's correction over these, per measure.
+
+**The pooled test** (:func:`kx.experiments.stats.van_elteren`): van Elteren's stratified rank-sum test,
+the strata the targets, two-sided at :data:`ALPHA`. Its effect size: the probability of improvement
+averaged over the targets (Agarwal et al. 2021), with a stratified-bootstrap 95% interval (runs resampled
+within each cell). Per-target Mann-Whitney tests are detail.
+
+**Verdicts** (per claim and measure): *supported* where the Holm-adjusted pooled p is below ALPHA and
+the estimate points the paper's way; *contradicted* where it is below ALPHA the other way; *not decided*
+otherwise, with the direction and size of the estimate, the power at the observed effect and the runs a
+cell that 80% would need (:func:`kx.experiments.stats.power`).
+
+**Test states.** Every run of a task is measured on the same ``test_trials`` start states of the test
+stream of the protocol seed (:func:`kx.evolve.streams.test`). protocol.json records a SHA-256 of those
+states for each task (:func:`test_state_digests`); extending a folder recomputes them and refuses, before
+any compute, a folder whose states this code would not reproduce.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import pathlib
+from typing import Callable
+
+import numpy as np
+
+from kx.evolve import outputs as run_outputs
+from kx.evolve.errors import RunError
+
+ALPHA = 0.05
+POWER_GOAL = 0.8
+#: the run counts the power search tries (runs a cell, in every cell of a comparison)
+POWER_RUNS = (5, 10, 15, 20, 25, 30, 35, 40, 50, 60, 80, 100)
+#: the measures, each its own families
+MEASURES = ("max_fitness", "test_fitness")
+#: runs a cell the protocol aims at, and up to how many a cell may be extended where power asks for it
+RUNS_PER_CELL, EXTEND_UP_TO = 20, 35
+
+
+@dataclasses.dataclass(frozen=True)
+class Claim:
+    """``a`` better than ``b``: cells ``(method, setup)``, pooled over the targets."""
+
+    family: str  # "primary" or "secondary"
+    claim: str  # "transfer", "novelty", "hyperneat" (the paper's); or what the secondary one asks
+    a: tuple[str, str]
+    b: tuple[str, str]
+
+    @property
+    def key(self) -> str:
+        return f"{self.a[0]}/{self.a[1]} > {self.b[0]}/{self.b[1]}"
+
+
+PAPER_SETUPS = ("none", "fitness", "novelty")
+PRIMARY = (
+    *(Claim("primary", "transfer", (m, s), (m, "none")) for m in ("neat", "hyperneat") for s in ("fitness", "novelty")),
+    *(Claim("primary", "novelty", (m, "novelty"), (m, "fitness")) for m in ("neat", "hyperneat")),
+    *(Claim("primary", "hyperneat", ("hyperneat", s), ("neat", s)) for s in PAPER_SETUPS),
+)
+SECONDARY = (
+    *(Claim("secondary", "novelty, no transfer", (m, "none_novelty"), (m, "none")) for m in ("neat", "hyperneat")),
+    *(Claim("secondary", "transfer, both with novelty", (m, "novelty"), (m, "none_novelty"))
+      for m in ("neat", "hyperneat")),
+    Claim("secondary", "hyperneat", ("hyperneat", "none_novelty"), ("neat", "none_novelty")),
+    Claim("secondary", "transfer", ("cma_es", "fitness"), ("cma_es", "none")),
+)
+CLAIMS = PRIMARY + SECONDARY
+#: the paper's claims, as the report words them
+TITLES = {"transfer": "Policy transfer beats evolving from scratch",
+          "novelty": "Fitness + NS transfer beats fitness transfer",
+          "hyperneat": "HyperNEAT beats NEAT"}
+
+
+def design() -> dict:
+    """The design as protocol.json records it."""
+    from kx.experiments import stats
+
+    fam = lambda claims: [c.key for c in claims]  # noqa: E731
+    return {
+        "measures": list(MEASURES),
+        "alpha": ALPHA,
+        "pooled_test": "van Elteren's stratified rank-sum test over the targets (weights 1/(n+1) per target, "
+                       "midranks, normal approximation with the tie correction), two-sided",
+        "effect": "probability of improvement averaged over the targets, stratified-bootstrap 95% interval "
+                  f"({stats.RESAMPLES} resamples, seed {stats.BOOTSTRAP_SEED})",
+        "correction": "Holm within each family and measure",
+        "primary": fam(PRIMARY),
+        "secondary (exploratory)": fam(SECONDARY),
+        "per_target": "two-sided Mann-Whitney U, Vargha-Delaney A, Holm over each table (detail)",
+        "power": f"the probability that the pooled test gives p < alpha / (family size) at the observed effect: "
+                 f"every cell's runs resampled with replacement to n runs ({stats.POWER_RESAMPLES} resamples, "
+                 f"seed {stats.BOOTSTRAP_SEED}); runs a cell for {POWER_GOAL:.0%}: the smallest n of "
+                 f"{list(POWER_RUNS)} that reaches it",
+        "runs_per_cell": RUNS_PER_CELL,
+        "extend_up_to": EXTEND_UP_TO,
+    }
+
+
+def _states_digest(states) -> str:
+    h = hashlib.sha256()
+    for f in dataclasses.fields(states):
+        a = np.ascontiguousarray(np.asarray(getattr(states, f.name)))
+        h.update(f"{f.name}:{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return "sha256:" + h.hexdigest()
+
+
+def test_state_digests(protocol, tasks) -> dict[str, str]:
+    """``{task: digest}`` of the protocol's test states of each task (the start states every run of the task
+    is measured on: :func:`kx.experiments.measure.held_out_states`, from a NEAT run's config of the task with
+    the protocol's overrides; the states depend on the task and the world's parameters only)."""
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import streams
+    from kx.sim import env
+
+    keys = streams.test(protocol.seed)
+    out = {}
+    for task in tasks:
+        cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"neat_{task}.py", list(protocol.overrides))
+        exp = cfg_lib.validate(cfg)
+        out[task] = _states_digest(env.reset_batch(keys.starts, protocol.test_trials, exp.sim_params, exp.sim))
+    return out
+
+
+def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] = print) -> None:
+    """Checks ``out/protocol.json`` (written by :func:`kx.experiments.table3.run` before this) against this
+    code: its ``test_states`` must be the states this code draws for every task of ``tasks``, and its
+    ``design`` this design; a file from before either was recorded gains it (said in ``log``). ``RunError``
+    naming the field otherwise, before any compute."""
+    path = pathlib.Path(out) / "protocol.json"
+    have = json.loads(path.read_text())
+    tasks = tuple(tasks)
+    states = {"stream": "kx.evolve.streams.test(seed)", "seed": protocol.seed, "trials": protocol.test_trials,
+              "sha256": test_state_digests(protocol, tasks)}
+    want = {"test_states": states, "design": design()}
+    added = []
+    for key, value in want.items():
+        if key not in have:
+            have[key] = value
+            added.append(key)
+        elif key == "test_states":
+            bad = [t for t in tasks if have[key].get("sha256", {}).get(t) != value["sha256"][t]]
+            if bad or {k: have[key].get(k) for k in ("seed", "trials")} != {"seed": protocol.seed,
+                                                                             "trials": protocol.test_trials}:
+                raise RunError(f"{path}: test_states: this code draws other test states than the folder's runs "
+                               f"were measured on (tasks {', '.join(bad) or 'all'}): a run measured now could not "
+                               "be compared with them; run the protocol in a new folder")
+        elif have[key] != value:
+            diff = sorted(k for k in set(have[key]) | set(value) if have[key].get(k) != value.get(k))
+            raise RunError(f"{path}: design: the statistical design recorded before the runs differs from this "
+                           f"code's ({', '.join(diff)}); a design is fixed before the runs: change it in a new "
+                           "folder")
+    if added:
+        run_outputs.write_json(path, have)
+        log(f"kx table3: {path.name} gains {' and '.join(added)} (recorded from now on)")
