@@ -315,7 +315,10 @@ def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
             ax.set_xlabel("generation")
             if j == 0:
                 ax.set_ylabel("best-so-far training fitness")
-            ax.legend(fontsize=7, loc="lower right")
+            if ax.lines:
+                ax.legend(fontsize=7, loc="lower right")
+            else:
+                ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", va="center", color="grey")
     fig.tight_layout()
     fig.savefig(out / "progression.png", dpi=90, metadata={"Software": None})
     plt.close(fig)
