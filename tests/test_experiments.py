@@ -210,8 +210,7 @@ def test_every_committed_table3_run_is_built_again_as_it_ran(tmp_path):
     """docs/table3: every row's run gets the same config from table3.config as the one it ran with, as far as
     results.csv records it (seed, its source's seed, objective, population, trials, generations, episodes)."""
     committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "table3"
-    spec = json.loads((committed / "protocol.json").read_text())
-    protocol = t3.Protocol(**{**spec, "overrides": tuple(spec["overrides"])})
+    protocol = t3.Protocol.read(committed / "protocol.json")
     rows = t3.read_results(committed / "results.csv")
     assert len(rows) >= 138
     cfgs = {t3.row_key(r): t3.config(protocol, t3.RunSpec(*t3.row_key(r)), tmp_path) for r in rows}

@@ -395,8 +395,9 @@ def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
             f"every setup, CMA-ES's two) at these mean wall times per run: **{total / 3600:.1f} hours** one after "
             "another on this machine")
     if borrowed:
-        text += (f"; the targets with no runs here ({', '.join(sorted(borrowed, key=t3.TARGETS.index))}) costed as "
-                 "the measured targets' mean (not measured: their teams and episodes differ)")
+        text += (f"; a method's targets with no runs of it here ({', '.join(sorted(borrowed, key=t3.TARGETS.index))}"
+                 ") costed at its mean over the targets it has runs in (not measured: their teams and episodes "
+                 "differ)")
     if missing:
         text += f"; left out, with no runs here: {', '.join(sorted(missing))}"
     return text + "."

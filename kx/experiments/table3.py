@@ -93,6 +93,14 @@ class Protocol:
     def to_json(self) -> dict:
         return {**dataclasses.asdict(self), "overrides": list(self.overrides)}
 
+    @classmethod
+    def read(cls, path: str | pathlib.Path) -> "Protocol":
+        """The protocol of a ``protocol.json`` (its records beside the parameters, ``design`` and
+        ``test_states``, are :mod:`kx.experiments.design`'s)."""
+        have = json.loads(pathlib.Path(path).read_text())
+        fields = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: tuple(v) if k == "overrides" else v for k, v in have.items() if k in fields})
+
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
