@@ -279,6 +279,8 @@ def test_the_hybrid_objective_scores_the_run_loops_behaviour_without_recompiling
     ("rho", float("nan"), "a number in [0, 1]"),
     ("archive_size", 0, "an integer in [1, 1000000]"),
     ("threshold", -0.01, "a finite number >= 0"), ("threshold", float("inf"), "a finite number >= 0"),
+    ("normalisation", "zscore", "one of ('population', 'fixed')"),
+    ("archive_rule", "novelty", "one of ('paper', 'authors')"),
 ])
 def test_bad_novelty_fields_are_refused_by_name(field, value, allowed):
     cfg = _hybrid_cfg()
@@ -296,7 +298,90 @@ def test_bad_novelty_fields_are_refused_by_name(field, value, allowed):
 
 
 def test_the_defaults_are_the_specs():
-    assert objectives.novelty_defaults() == {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03}
+    assert objectives.novelty_defaults() == {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03,
+                                             "normalisation": "population", "archive_rule": "paper"}
     obj = objectives.make(_hybrid_cfg())
     assert (obj.k, obj.rho, obj.archive_size, obj.threshold) == (15, 0.4, 1000, 0.03)
     assert isinstance(objectives.make(cfg_lib.base_config("neat")), objectives.Fitness)
+
+
+# --- the readings (docs/novelty.md) -----------------------------------------------------------------
+
+
+def test_a_weight_of_zero_ranks_by_novelty_alone_in_a_generation():
+    """rho = 0 (the authors' HyperNEAT arm): the score orders the population as its novelty does, whatever
+    the fitness; rho = 1 as its fitness does (the step, archive and all)."""
+    rng = np.random.default_rng(11)
+    beh = jnp.asarray(rng.random((30, 3)), jnp.float32)
+    fit = jnp.asarray(rng.random(30), jnp.float32)
+    archive = nv.init_archive(50, 3)
+    for rho, key in ((0.0, "nov"), (1.0, "fit")):
+        for normalisation in nv.NORMALISATIONS:
+            params = nv.NoveltyParams(rho=rho, threshold=0.03, k=5, normalisation=normalisation)
+            score, _, _ = jax.jit(nv.step)(fit, beh, archive, params)
+            ref = {"nov": _nov(beh, archive, k=5), "fit": np.asarray(fit)}[key]
+            np.testing.assert_array_equal(np.argsort(np.asarray(score), kind="stable"), np.argsort(ref, kind="stable"))
+
+
+def test_fixed_bounds_keep_the_rest_of_a_population_apart_when_one_genome_stands_far_above_it():
+    """One outlier: min-max over the population squeezes the others' fitness into [0, 0.02]; fixed bounds
+    leave it as it is (a share of the longest episode) and divide novelty by sqrt(D), by hand."""
+    fit = jnp.asarray([0.90, 0.010, 0.015, 0.020], jnp.float32)
+    nov = jnp.asarray([0.6, 0.3, 0.2, 0.1], jnp.float32)
+    fixed = nv.hybrid(fit, nov, 0.4, "fixed", dim=3)
+    want = [0.4 * f + 0.6 * n / math.sqrt(3) for f, n in zip([0.90, 0.010, 0.015, 0.020], [0.6, 0.3, 0.2, 0.1])]
+    np.testing.assert_allclose(fixed, want, rtol=1e-6)
+    pop = np.asarray(nv.hybrid(fit, nov, 0.4, "population"))
+    # min-max: fitness 1, 0, 0.00562, 0.01124; novelty 1, 0.4, 0.2, 0
+    np.testing.assert_allclose(pop, [1.0, 0.6 * 0.4, 0.4 * 0.005 / 0.89 + 0.6 * 0.2, 0.4 * 0.010 / 0.89], rtol=1e-5)
+    with pytest.raises(ValueError, match="dim: the behaviour's dimension"):
+        nv.hybrid(fit, nov, 0.4, "fixed")
+    with pytest.raises(ValueError, match="normalisation: allowed population, fixed, got 'rank'"):
+        nv.hybrid(fit, nov, 0.4, "rank")
+
+
+def test_the_authors_archive_rule_adds_the_ten_most_novel_above_the_threshold():
+    rng = np.random.default_rng(12)
+    beh = jnp.asarray(rng.random((40, 3)), jnp.float32)
+    nov = jnp.asarray(rng.random(40), jnp.float32).at[7].set(2.0).at[8].set(2.0)  # a tie, the most novel
+    fit = jnp.zeros(40, jnp.float32).at[8].set(1.0)  # the fitter of the tie first
+    update = jax.jit(nv.update_archive_authors)
+    a, n = update(nv.init_archive(25, 3), beh, nov, 0.03, fit)
+    order = sorted(range(40), key=lambda i: (-float(nov[i]), -float(fit[i]), i))[:10]
+    assert order[:2] == [8, 7]
+    assert int(n) == 10 and int(a.size) == 10 and int(a.head) == 10 and int(a.added) == 10
+    np.testing.assert_array_equal(np.asarray(a.entries[:10]), np.asarray(beh)[order])
+    # a second generation: 10 more into the ring, which wraps at 25
+    a, n = update(a, beh, nov, 0.03, fit)
+    a, n = update(a, beh, nov, 0.03, fit)
+    assert int(n) == 10 and int(a.size) == 25 and int(a.head) == 5 and int(a.added) == 30
+    # fewer than 10 above the threshold: only those, the threshold strict
+    few = jnp.full(40, 0.03, jnp.float32).at[3].set(0.5).at[5].set(0.04)
+    a, n = update(nv.init_archive(25, 3), beh, few, 0.03, fit)
+    assert int(n) == 2 and int(a.size) == 2
+    np.testing.assert_array_equal(np.asarray(a.entries[:2]), np.asarray(beh)[[3, 5]])
+    # through the step: the archive grows by at most 10 a generation, the paper's rule by every novel one
+    params = nv.NoveltyParams(rho=0.4, threshold=0.0, k=5, archive_rule="authors")
+    _, a, m = jax.jit(nv.step)(fit, beh, nv.init_archive(1000, 3), params)
+    assert int(m["archive_added"]) == 10 == int(a.size)
+    _, a, m = jax.jit(nv.step)(fit, beh, nv.init_archive(1000, 3), params.replace(archive_rule="paper"))
+    assert int(m["archive_added"]) == 40
+    with pytest.raises(ValueError, match="archive_rule: allowed paper, authors, got 'all'"):
+        nv.NoveltyParams(rho=0.4, threshold=0.0, archive_rule="all")
+
+
+def test_a_run_written_before_the_readings_existed_reads_them_as_the_paper_s(tmp_path):
+    """config.json and checkpoints of runs written before ``novelty.normalisation`` and
+    ``novelty.archive_rule`` existed read them as the code before them did: resumable, and no mismatch."""
+    import json
+
+    cfg = _hybrid_cfg()
+    old = cfg.to_dict()
+    for f in ("normalisation", "archive_rule"):
+        del old["novelty"][f]
+    (tmp_path / "config.json").write_text(json.dumps(old))
+    back = cfg_lib.read_run_config(tmp_path / "config.json")
+    assert (back.novelty.normalisation, back.novelty.archive_rule) == ("population", "paper")
+    assert cfg_lib.identity_mismatch(old, cfg) is None
+    cfg.novelty.archive_rule = "authors"
+    assert "novelty.archive_rule = 'paper' in the checkpoint, 'authors' now" in cfg_lib.identity_mismatch(old, cfg)

@@ -12,6 +12,7 @@ out of range with a message that names the field and what it allows; each method
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import importlib.util
@@ -332,6 +333,24 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
     return cfg
 
 
+#: config fields added after runs were written with the code before them: a config.json or a checkpoint
+#: without one reads it as this value, which is what that code did (so those runs resume and seed targets)
+ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper"}
+
+
+def with_later_fields(d: dict) -> dict:
+    """``d`` (a nested config dict) with each :data:`ADDED_LATER` field it lacks at its old value; a copy."""
+    d = copy.deepcopy(d)
+    for dotted, value in ADDED_LATER.items():
+        *parents, leaf = dotted.split(".")
+        node = d
+        for part in parents:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict) and leaf not in node:
+            node[leaf] = value
+    return d
+
+
 def read_run_config(path: str | pathlib.Path) -> ml_collections.ConfigDict:
     """A run directory's ``config.json`` as a config (unlocked), or :class:`ConfigError` saying why not:
     missing, not JSON, not an object of config fields, or written by a kx with other fields."""
@@ -344,6 +363,7 @@ def read_run_config(path: str | pathlib.Path) -> ml_collections.ConfigDict:
         raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
     if isinstance(d, dict):
         d = {k: v for k, v in d.items() if k != SOURCE_RECORD}  # a transferred run's record of its source
+        d = with_later_fields(d)
     try:
         cfg = from_dict(d)
         missing = sorted(set(_fields(cfg)) - set(flatten(d)))
@@ -362,7 +382,7 @@ def identity_mismatch(saved: dict, cfg: ml_collections.ConfigDict) -> str | None
     now = cfg.to_dict()
     # JSON writes tuples as lists
     tup = lambda d: {k: tuple(v) if isinstance(v, list) else v for k, v in flatten(d).items()}  # noqa: E731
-    a, b = tup(saved), tup(now)
+    a, b = tup(with_later_fields(saved)), tup(now)
     for field in sorted(set(a) | set(b)):
         if field in RESUMABLE:
             continue

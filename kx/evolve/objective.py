@@ -11,7 +11,9 @@ the score.
   ``novelty`` config section: ``rho`` times the population-normalised fitness plus ``1 - rho`` times
   the normalised novelty (the mean distance to the ``k`` nearest behaviours among the rest of the
   population and the archive); the state is the archive (``archive_size`` behaviour vectors, those
-  with novelty above ``threshold`` admitted, the oldest replaced once full).
+  with novelty above ``threshold`` admitted, the oldest replaced once full). Its readings
+  (docs/novelty.md): ``normalisation`` ("population" min-max, or "fixed" bounds) and ``archive_rule``
+  ("paper", or "authors": the 10 most novel above the threshold a generation).
 """
 
 from __future__ import annotations
@@ -28,8 +30,9 @@ OBJECTIVES = ("fitness", "hybrid")
 
 
 def novelty_defaults() -> dict:
-    """The ``novelty`` config section at its defaults (SPEC section 4)."""
-    return {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03}
+    """The ``novelty`` config section at its defaults (SPEC section 4; the readings: docs/novelty.md)."""
+    return {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03, "normalisation": "population",
+            "archive_rule": "paper"}
 
 
 class Objective:
@@ -71,9 +74,12 @@ class Hybrid(Objective):
     # (measured at 10 x 50, 16 x 150 and 10 x 150; identical at 3 x 50 and 4 x 12)
     vmap_exact = False
 
-    def __init__(self, k: int, rho: float, archive_size: int, threshold: float):
+    def __init__(self, k: int, rho: float, archive_size: int, threshold: float, normalisation: str = "population",
+                 archive_rule: str = "paper"):
         self.k, self.rho, self.archive_size, self.threshold = k, rho, archive_size, threshold
-        self.params = nv.NoveltyParams(rho=float(rho), threshold=float(threshold), k=int(k))
+        self.normalisation, self.archive_rule = normalisation, archive_rule
+        self.params = nv.NoveltyParams(rho=float(rho), threshold=float(threshold), k=int(k),
+                                       normalisation=normalisation, archive_rule=archive_rule)
         self._step = _novelty_step  # the module's: shared by every instance
 
     def init(self, population_size: int) -> nv.Archive:
@@ -94,6 +100,8 @@ def _check_novelty(section) -> dict:
         "rho": (lambda v: is_number(v) and 0 <= v <= 1, "a number in [0, 1]"),
         "archive_size": (lambda v: is_int(v) and 1 <= v <= 1_000_000, "an integer in [1, 1000000]"),
         "threshold": (lambda v: is_number(v) and v >= 0, "a finite number >= 0"),
+        "normalisation": (lambda v: v in nv.NORMALISATIONS, f"one of {nv.NORMALISATIONS}"),
+        "archive_rule": (lambda v: v in nv.ARCHIVE_RULES, f"one of {nv.ARCHIVE_RULES}"),
     }
     for field, (ok, allowed) in checks.items():
         need(ok(fields[field]), f"novelty.{field}", allowed, fields[field], error=ObjectiveError)

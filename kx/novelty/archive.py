@@ -58,3 +58,31 @@ def update_archive(archive: Archive, behaviour: jax.Array, novelty: jax.Array,
     archive = archive.replace(entries=entries, size=jnp.minimum(archive.size + n, cap).astype(jnp.int32),
                               head=((archive.head + n) % cap).astype(jnp.int32), added=archive.added + n)
     return archive, n
+
+
+#: admissions per generation under the authors' archive rule (ComputeNovelty.cs 103-112)
+AUTHORS_PER_GENERATION = 10
+
+
+def update_archive_authors(archive: Archive, behaviour: jax.Array, novelty: jax.Array, threshold: jax.Array | float,
+                           fitness: jax.Array) -> tuple[Archive, jax.Array]:
+    """The authors' HyperNEAT rule: ``(archive, n_admitted)`` with at most :data:`AUTHORS_PER_GENERATION`
+    individuals a generation, the most novel of those strictly above ``threshold`` (equal novelty: the
+    fitter first, then the earlier in the population), written into the ring most novel first. Their
+    archive has no cap; here the ring's capacity bounds it (1000 by default: 10 a generation fill it only
+    after 100 generations)."""
+    p = novelty.shape[0]
+    m = min(AUTHORS_PER_GENERATION, p)
+    # the order: novelty descending, then fitness descending, then population index ascending
+    order = jnp.lexsort((jnp.arange(p), -jnp.asarray(fitness, jnp.float32), -novelty))
+    top = order[:m]
+    admit = novelty[top] > threshold  # [m]; sorted, so the admitted come first
+    n = jnp.sum(admit, dtype=jnp.int32)
+    cap = archive.capacity
+    rank = jnp.arange(m, dtype=jnp.int32)
+    write = admit & (rank >= n - cap)
+    slot = jnp.where(write, (archive.head + rank) % cap, cap)  # cap: out of bounds, dropped
+    entries = archive.entries.at[slot].set(behaviour[top].astype(jnp.float32), mode="drop")
+    archive = archive.replace(entries=entries, size=jnp.minimum(archive.size + n, cap).astype(jnp.int32),
+                              head=((archive.head + n) % cap).astype(jnp.int32), added=archive.added + n)
+    return archive, n

@@ -20,10 +20,11 @@ Where the authors' code differs (``HN/Sources/KeepAway``; kx follows SPEC):
   taking the k nearest of population and archive together, and breaks ties by fitness (kx: the mean
   of the k smallest distances, which ties cannot change);
 * their archive has no size cap and takes at most the 10 most novel genomes per generation (kx: every
-  one above the threshold, into a ring of 1000);
+  one above the threshold, into a ring of 1000; ``archive_rule="authors"`` reads theirs);
 * their hybrid weight never reached the HyperNEAT arm (the config field ``scalariser`` against the XML
   element ``<Scalarizer>``), so its "hybrid" was pure novelty; and they weighted raw, not normalised,
-  fitness and novelty. kx applies rho = 0.4 to the normalised values.
+  fitness and novelty. kx applies rho = 0.4 to the normalised values (``normalisation="fixed"``: divided by
+  fixed bounds instead of the population's range).
 
 Every function is pure and vectorised over the population; ``step`` is jitted by its caller
 (:class:`kx.evolve.objective.Hybrid`).
@@ -35,16 +36,36 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from kx.novelty.archive import Archive, update_archive
+from kx.novelty.archive import Archive, update_archive, update_archive_authors
+
+#: the readings of the hybrid (issue 32; docs/novelty.md): how fitness and novelty are put on one scale, and
+#: which individuals the archive admits
+NORMALISATIONS = ("population", "fixed")
+ARCHIVE_RULES = ("paper", "authors")
 
 
 @struct.dataclass
 class NoveltyParams:
-    """The hybrid's settings: ``k`` sets a shape (static); ``rho`` and ``threshold`` are traced."""
+    """The hybrid's settings: ``k`` and the readings are static (they choose code); ``rho`` and
+    ``threshold`` are traced."""
 
     rho: jax.Array | float  # weight of normalised fitness in the score, in [0, 1]
     threshold: jax.Array | float  # admission to the archive: novelty strictly above it
     k: int = struct.field(pytree_node=False, default=15)  # nearest neighbours
+    # "population": fitness and novelty min-max normalised over the generation's population (kx's reading
+    # of the paper's "normalized"); "fixed": divided by fixed bounds, fitness by 1 (it is a share of the
+    # longest episode already) and novelty by the behaviour space's diameter, sqrt(D) for D statistics
+    # in [0, 1] (one genome far above the rest then leaves the others' differences as they are)
+    normalisation: str = struct.field(pytree_node=False, default="population")
+    # "paper": every individual with novelty above the threshold joins a ring of archive_size (SPEC section
+    # 4); "authors": the 10 most novel above the threshold a generation (their HyperNEAT code)
+    archive_rule: str = struct.field(pytree_node=False, default="paper")
+
+    def __post_init__(self):
+        if self.normalisation not in NORMALISATIONS:
+            raise ValueError(f"normalisation: allowed {', '.join(NORMALISATIONS)}, got {self.normalisation!r}")
+        if self.archive_rule not in ARCHIVE_RULES:
+            raise ValueError(f"archive_rule: allowed {', '.join(ARCHIVE_RULES)}, got {self.archive_rule!r}")
 
 
 def novelty(behaviour: jax.Array, archive: Archive, k: int) -> jax.Array:
@@ -75,10 +96,21 @@ def minmax(x: jax.Array) -> jax.Array:
     return jnp.where(spread > 0, (x - lo) / jnp.where(spread > 0, spread, 1.0), 0.0)
 
 
-def hybrid(fitness: jax.Array, novelty: jax.Array, rho: jax.Array | float) -> jax.Array:
-    """``[P]`` ``rho * fit + (1 - rho) * nov`` of min-max normalised fitness and novelty."""
-    fit = minmax(jnp.asarray(fitness, jnp.float32))
-    nov = minmax(jnp.asarray(novelty, jnp.float32))
+def hybrid(fitness: jax.Array, novelty: jax.Array, rho: jax.Array | float, normalisation: str = "population",
+           dim: int | None = None) -> jax.Array:
+    """``[P]`` ``rho * fit + (1 - rho) * nov``: fitness and novelty min-max normalised over the population
+    (``normalisation="population"``), or divided by fixed bounds (``"fixed"``: fitness, a share of the
+    longest episode, by 1; novelty, a mean Euclidean distance between behaviours of ``dim`` statistics in
+    [0, 1], by the space's diameter ``sqrt(dim)``)."""
+    fitness, novelty = jnp.asarray(fitness, jnp.float32), jnp.asarray(novelty, jnp.float32)
+    if normalisation == "population":
+        fit, nov = minmax(fitness), minmax(novelty)
+    elif normalisation == "fixed":
+        if dim is None or dim < 1:
+            raise ValueError(f"dim: the behaviour's dimension (>= 1) is needed for fixed bounds, got {dim!r}")
+        fit, nov = fitness, novelty / jnp.sqrt(jnp.float32(dim))
+    else:
+        raise ValueError(f"normalisation: allowed {', '.join(NORMALISATIONS)}, got {normalisation!r}")
     return rho * fit + (1.0 - rho) * nov
 
 
@@ -94,8 +126,11 @@ def step(fitness: jax.Array, behaviour: jax.Array, archive: Archive,
     """
     fitness = jnp.asarray(fitness, jnp.float32)
     nov = novelty(behaviour, archive, params.k)
-    archive, n_added = update_archive(archive, behaviour, nov, params.threshold)
-    score = hybrid(fitness, nov, params.rho)
+    if params.archive_rule == "authors":
+        archive, n_added = update_archive_authors(archive, behaviour, nov, params.threshold, fitness)
+    else:
+        archive, n_added = update_archive(archive, behaviour, nov, params.threshold)
+    score = hybrid(fitness, nov, params.rho, params.normalisation, behaviour.shape[-1])
     metrics = {"mean_novelty": jnp.mean(nov), "champion_novelty": nov[jnp.argmax(fitness)],
                "archive_size": archive.size, "archive_added": n_added, "score_std": jnp.std(score)}
     return score, archive, metrics
