@@ -48,7 +48,7 @@ def make_state(keepers, takers, holder, **kw) -> State:
         holder=i32(holder), ball_x=i32(hx), ball_y=i32(hy), origin_x=i32(hx), origin_y=i32(hy),
         dir_x=i32(1), dir_y=i32(0), substep=i32(0), kicker=i32(-1), t=i32(0),
         done=jnp.asarray(False), reason=i32(0), passes=i32(0), contest=i32(0), dispersion_sum=i32(0),
-        ball_centre_sum=i32(0))
+        ball_centre_sum=i32(0), decisions=i32(0))
     fields.update({k: (jnp.asarray(v) if k == "done" else i32(v)) for k, v in kw.items()})
     return State(**fields)
 

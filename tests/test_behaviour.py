@@ -63,13 +63,14 @@ def test_counts_normalised_by_hand():
     # 40 iterations, 10 passes, keepers' pair distances summing to 3 * 10 cells, ball 5 cells from the centre
     t, passes = jnp.int32(40), jnp.int32(10)
     st = env.stats_from_counts(t, jnp.int32(Reason.INTERCEPTED), passes, jnp.int32(40 * 3 * 10 * DIST_SCALE),
-                               jnp.int32(40 * 5 * DIST_SCALE), PARAMS, CFG)
+                               jnp.int32(40 * 5 * DIST_SCALE), jnp.int32(29), PARAMS, CFG)
     beh = np.asarray(st.behaviour)
     np.testing.assert_allclose(beh, [10 / 40, 10 / (19 * (2 + math.sqrt(2)) / 3), 5 / (9.5 * math.sqrt(2))],
                                rtol=1e-6)
     assert int(st.passes) == 10 and float(st.fitness) == float(np.float32(39) / np.float32(4500))
+    assert int(st.decisions) == 29  # a count, carried as it is
     # no iteration executed: zeros, not NaN
-    st0 = env.stats_from_counts(jnp.int32(0), jnp.int32(0), jnp.int32(0), jnp.int32(0), jnp.int32(0), PARAMS, CFG)
+    st0 = env.stats_from_counts(*[jnp.int32(0)] * 6, PARAMS, CFG)
     assert np.all(np.asarray(st0.behaviour) == 0.0)
 
 
@@ -78,7 +79,7 @@ def test_keepers_on_corners_reach_the_dispersion_bound():
     # (608, 608, 860) is a hair above the exact bound, so the statistic is clipped to exactly 1
     q = 2 * round(DIST_SCALE * 19) + round(DIST_SCALE * 19 * math.sqrt(2))
     st = env.stats_from_counts(jnp.int32(5), jnp.int32(Reason.TIME_LIMIT), jnp.int32(0), jnp.int32(5 * q),
-                               jnp.int32(5 * round(DIST_SCALE * 9.5 * math.sqrt(2))), PARAMS, CFG)
+                               jnp.int32(5 * round(DIST_SCALE * 9.5 * math.sqrt(2))), jnp.int32(5), PARAMS, CFG)
     assert float(st.behaviour[1]) == 1.0 and float(st.behaviour[2]) == 1.0
 
 
@@ -123,5 +124,5 @@ def test_jitted_fitness_is_the_exact_quotient():
     z = jnp.zeros_like(t)
     params = KeepAwayParams(max_iterations=600)
     f = jax.jit(env.stats_from_counts, static_argnames="config")
-    got = np.asarray(f(t, z + Reason.TIME_LIMIT, z, z, z, params, config=CFG).fitness)
+    got = np.asarray(f(t, z + Reason.TIME_LIMIT, z, z, z, z, params, config=CFG).fitness)
     np.testing.assert_array_equal(got, np.arange(1, 601, dtype=np.float32) / np.float32(600))

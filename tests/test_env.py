@@ -205,8 +205,10 @@ def test_invariants_over_random_rollouts(task):
     hy = np.take_along_axis(tr["keeper_y"], np.maximum(tr["holder"], 0)[:, None], 1)[:, 0]
     assert np.all(~(running & held) | ((tr["ball_x"] == hx) & (tr["ball_y"] == hy)))
     assert np.all(~running | ((tr["ball_x"] >= 0) & (tr["ball_x"] < w) & (tr["ball_y"] >= 0) & (tr["ball_y"] < w)))
-    for f in ("t", "passes", "dispersion_sum", "ball_centre_sum"):
+    for f in ("t", "passes", "dispersion_sum", "ball_centre_sum", "decisions"):
         assert np.all(np.diff(tr[f], axis=0) >= 0), f  # counters are monotone
+    # a decision each live iteration that begins with the ball held (the step before's holder)
+    np.testing.assert_array_equal(np.diff(tr["decisions"], axis=0), (running & held)[:-1].astype(int))
     assert np.all(np.diff(tr["done"].astype(int), axis=0) >= 0)  # done is absorbing
     assert np.all((tr["reason"] != Reason.RUNNING) == tr["done"])
     assert np.all(np.diff(tr["t"], axis=0) == (~tr["done"][:-1]).astype(int))  # t counts live iterations

@@ -281,6 +281,7 @@ def test_the_hybrid_objective_scores_the_run_loops_behaviour_without_recompiling
     ("threshold", -0.01, "a finite number >= 0"), ("threshold", float("inf"), "a finite number >= 0"),
     ("normalisation", "zscore", "one of ('population', 'fixed')"),
     ("archive_rule", "novelty", "one of ('paper', 'authors')"),
+    ("behaviour", "passes", "one of ('paper', 'authors')"),
 ])
 def test_bad_novelty_fields_are_refused_by_name(field, value, allowed):
     cfg = _hybrid_cfg()
@@ -299,7 +300,8 @@ def test_bad_novelty_fields_are_refused_by_name(field, value, allowed):
 
 def test_the_defaults_are_the_specs():
     assert objectives.novelty_defaults() == {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03,
-                                             "normalisation": "population", "archive_rule": "paper"}
+                                             "normalisation": "population", "archive_rule": "paper",
+                                             "behaviour": "paper"}
     obj = objectives.make(_hybrid_cfg())
     assert (obj.k, obj.rho, obj.archive_size, obj.threshold) == (15, 0.4, 1000, 0.03)
     assert isinstance(objectives.make(cfg_lib.base_config("neat")), objectives.Fitness)
@@ -377,11 +379,45 @@ def test_a_run_written_before_the_readings_existed_reads_them_as_the_paper_s(tmp
 
     cfg = _hybrid_cfg()
     old = cfg.to_dict()
-    for f in ("normalisation", "archive_rule"):
+    for f in ("normalisation", "archive_rule", "behaviour"):
         del old["novelty"][f]
     (tmp_path / "config.json").write_text(json.dumps(old))
     back = cfg_lib.read_run_config(tmp_path / "config.json")
-    assert (back.novelty.normalisation, back.novelty.archive_rule) == ("population", "paper")
+    assert (back.novelty.normalisation, back.novelty.archive_rule, back.novelty.behaviour) == ("population", "paper",
+                                                                                               "paper")
     assert cfg_lib.identity_mismatch(old, cfg) is None
     cfg.novelty.archive_rule = "authors"
     assert "novelty.archive_rule = 'paper' in the checkpoint, 'authors' now" in cfg_lib.identity_mismatch(old, cfg)
+
+
+def test_the_authors_behaviour_is_time_held_dispersion_and_decisions_on_a_hand_played_episode():
+    """behaviour = "authors": each trial's [time held, dispersion, decisions], decisions counting every
+    iteration that began with the ball held (the holder's decision, hold included), over max_iterations.
+    Hand-played 3v2: keeper 0 holds twice, passes 6 cells east (the ball flies 2 cells an iteration, so
+    nobody decides while it flies), then the receiver holds to the end."""
+    from conftest import make_state
+
+    from kx.sim import env
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+    config, params = KeepAwayConfig(), KeepAwayParams(max_iterations=10)
+    s = make_state([(2, 2), (8, 2), (2, 12)], [(16, 16), (17, 17)], holder=0)
+    step = jax.jit(lambda s, a: env.transition(s, a, jnp.int32(0), params, config))
+    held_at_start = []
+    for a in (0, 0, 1, 1, 1, 1, 1, 1, 1, 1):
+        held_at_start.append(int(s.holder) >= 0)
+        s = step(s, jnp.int32(a))
+    assert bool(s.done) and int(s.t) == 10 and int(s.passes) == 1
+    assert held_at_start[:3] == [True, True, True] and not all(held_at_start)  # the pass flew
+    assert int(s.decisions) == sum(held_at_start) < 10
+    stats = jax.tree.map(lambda a: a[..., None], env.episode_stats(s, params, config))  # a batch of one
+    cfg = _hybrid_cfg()
+    with cfg.unlocked():
+        cfg.novelty.behaviour = "authors"
+        cfg.sim.max_iterations = 10
+    obj = objectives.make(cfg)
+    got = np.asarray(obj.behaviour_of(stats))[:, 0]
+    np.testing.assert_allclose(got, [float(stats.fitness[0]), float(stats.behaviour[1, 0]), sum(held_at_start) / 10],
+                               rtol=1e-6)
+    assert float(stats.fitness[0]) == 1.0  # kept to the time limit
+    assert objectives.make(_hybrid_cfg()).behaviour_of(stats) is None  # the paper's: the world's own

@@ -201,3 +201,30 @@ def test_sigkill_then_resume_keeps_the_archive(runs, tmp_path):
     diff = [(i, k, r[k], w[k]) for i, (r, w) in enumerate(zip(got, want, strict=True)) for k in r
             if r[k] != w[k] and k != "live_fraction"]
     assert not diff, diff[:5]
+
+
+def test_the_authors_behaviour_reaches_the_objective_through_the_run_loop():
+    """novelty.behaviour = authors: the objective scores each genome's mean over its trials of [time held,
+    dispersion, decisions / max_iterations]: its first row is the training fitness the run reports, its
+    second the world's dispersion; with threshold 0 the whole first generation enters the archive."""
+    cfg = cfg_lib.load(None, OVERRIDES + ["generations=1", "novelty.behaviour=authors", "novelty.threshold=0.0"])
+    trainer = run_lib.Trainer(cfg)
+    seen = []
+    score = trainer.objective.score
+
+    def spy(fitness, behaviour, state):
+        seen.append((np.asarray(fitness), np.asarray(behaviour)))
+        return score(fitness, behaviour, state)
+
+    trainer.objective.score = spy
+    state, rows = run_lib.evolve_in_memory(trainer)
+    fitness, behaviour = seen[0]
+    assert behaviour.shape == (3, POPULATION)
+    np.testing.assert_array_equal(behaviour[0], fitness)  # time held is the fitness, mean for mean
+    assert float(rows[0]["mean_dispersion"]) == pytest.approx(float(behaviour[1].mean()), rel=1e-5)
+    # a decision in at most every iteration played: the iteration that loses the ball too, which the
+    # time held (iterations survived) leaves out
+    assert np.all(behaviour[2] <= behaviour[0] + 1 / 60 + 1e-6) and np.all(behaviour[2] > 0)
+    archive = jax.device_get(state.objective)
+    assert int(archive.size) == POPULATION
+    np.testing.assert_array_equal(np.asarray(archive.entries[:POPULATION]).T, behaviour)

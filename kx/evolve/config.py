@@ -335,7 +335,7 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
 
 #: config fields added after runs were written with the code before them: a config.json or a checkpoint
 #: without one reads it as this value, which is what that code did (so those runs resume and seed targets)
-ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper"}
+ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper", "novelty.behaviour": "paper"}
 
 
 def with_later_fields(d: dict) -> dict:

@@ -13,7 +13,8 @@ the score.
   population and the archive); the state is the archive (``archive_size`` behaviour vectors, those
   with novelty above ``threshold`` admitted, the oldest replaced once full). Its readings
   (docs/novelty.md): ``normalisation`` ("population" min-max, or "fixed" bounds) and ``archive_rule``
-  ("paper", or "authors": the 10 most novel above the threshold a generation).
+  ("paper", or "authors": the 10 most novel above the threshold a generation) and ``behaviour`` ("paper",
+  or "authors": time held, dispersion and decisions).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ OBJECTIVES = ("fitness", "hybrid")
 def novelty_defaults() -> dict:
     """The ``novelty`` config section at its defaults (SPEC section 4; the readings: docs/novelty.md)."""
     return {"k": 15, "rho": 0.4, "archive_size": 1000, "threshold": 0.03, "normalisation": "population",
-            "archive_rule": "paper"}
+            "archive_rule": "paper", "behaviour": "paper"}
 
 
 class Objective:
@@ -48,6 +49,11 @@ class Objective:
     def init(self, population_size: int) -> Any:
         return {}
 
+    def behaviour_of(self, stats) -> jax.Array | None:
+        """The behaviour ``[3, *B]`` the objective scores, from a batch of :class:`~kx.sim.types.EpisodeStats`;
+        ``None``: the world's own (``stats.behaviour``: passes, dispersion, ball distance from the centre)."""
+        return None
+
     def score(self, fitness: jax.Array, behaviour: jax.Array, state: Any) -> tuple[jax.Array, Any, dict]:
         """``(score [P], next state, metrics)``."""
         del behaviour
@@ -56,8 +62,13 @@ class Objective:
 
 Fitness = Objective
 
-#: the behaviour vector the run loop hands ``score``: passes, dispersion, ball distance from centre
+#: the behaviour vector the run loop hands ``score``: passes, dispersion, ball distance from centre (the
+#: paper's), or the authors' reading (:data:`BEHAVIOURS`)
 BEHAVIOUR_DIM = 3
+#: the behaviour vector's readings (docs/novelty.md): "paper", the world's passes, keeper dispersion and
+#: ball distance from the centre; "authors", their HyperNEAT code's: time held, keeper dispersion and
+#: decisions (every decision of the holder counted as a pass), each a share of its bound
+BEHAVIOURS = ("paper", "authors")
 
 
 # One compiled program per shape (and ``k``, a static field of the params), shared by every run.
@@ -75,9 +86,10 @@ class Hybrid(Objective):
     vmap_exact = False
 
     def __init__(self, k: int, rho: float, archive_size: int, threshold: float, normalisation: str = "population",
-                 archive_rule: str = "paper"):
+                 archive_rule: str = "paper", behaviour: str = "paper", max_iterations=4500):
         self.k, self.rho, self.archive_size, self.threshold = k, rho, archive_size, threshold
-        self.normalisation, self.archive_rule = normalisation, archive_rule
+        self.normalisation, self.archive_rule, self.behaviour = normalisation, archive_rule, behaviour
+        self.max_iterations = max_iterations
         self.params = nv.NoveltyParams(rho=float(rho), threshold=float(threshold), k=int(k),
                                        normalisation=normalisation, archive_rule=archive_rule)
         self._step = _novelty_step  # the module's: shared by every instance
@@ -85,6 +97,17 @@ class Hybrid(Objective):
     def init(self, population_size: int) -> nv.Archive:
         del population_size  # the archive's shape is the config's alone
         return nv.init_archive(self.archive_size, BEHAVIOUR_DIM)
+
+    def behaviour_of(self, stats) -> jax.Array | None:
+        """The authors' reading: ``[time held, dispersion, decisions]``, the first the fitness (iterations
+        survived over ``max_iterations``), the second the world's, the third the holders' decisions over
+        ``max_iterations`` (HyperNEATKeepawayPlayer.cs 336-354 counts every decision, hold included, as a
+        pass); the paper's: ``None``, the world's own."""
+        if self.behaviour == "paper":
+            return None
+        decisions = jnp.asarray(stats.decisions, jnp.float32) / jnp.float32(self.max_iterations)
+        return jnp.stack([jnp.asarray(stats.fitness, jnp.float32), jnp.asarray(stats.behaviour[1], jnp.float32),
+                          jnp.minimum(decisions, 1.0)])
 
     def score(self, fitness: jax.Array, behaviour: jax.Array,
               state: nv.Archive) -> tuple[jax.Array, nv.Archive, dict]:
@@ -102,6 +125,7 @@ def _check_novelty(section) -> dict:
         "threshold": (lambda v: is_number(v) and v >= 0, "a finite number >= 0"),
         "normalisation": (lambda v: v in nv.NORMALISATIONS, f"one of {nv.NORMALISATIONS}"),
         "archive_rule": (lambda v: v in nv.ARCHIVE_RULES, f"one of {nv.ARCHIVE_RULES}"),
+        "behaviour": (lambda v: v in BEHAVIOURS, f"one of {BEHAVIOURS}"),
     }
     for field, (ok, allowed) in checks.items():
         need(ok(fields[field]), f"novelty.{field}", allowed, fields[field], error=ObjectiveError)
@@ -115,5 +139,5 @@ def make(cfg) -> Objective:
     if cfg.objective == "fitness":
         return Fitness()
     if cfg.objective == "hybrid":
-        return Hybrid(**novelty)
+        return Hybrid(**novelty, max_iterations=cfg.sim.get("max_iterations"))  # checked with the sim section
     raise ObjectiveError(f"objective: allowed one of {OBJECTIVES}, got {cfg.objective!r}")

@@ -9,6 +9,7 @@ and a generation of all R is::
     population, learner = over_runs(encoding.ask)(keys_ask, state.learner)               # [R, P, ...]
     stats   = evaluate(policy, params(population) [R*P], starts [.., R*T], keys [R])  # [R, P, T]
     fitness, behaviour = trial_means(stats)                                           # each run's own slice
+    # (the objective may read another behaviour from the trials' statistics: objective.behaviour_of)
     score, objective = over_runs(objective.score)(fitness [R, P], behaviour [R, 3, P], state.objective)
     learner = over_runs(encoding.tell)(keys_tell, population, score, fitness, learner)
     validation = evaluate(policy, params(champions) [R], validation starts [.., R*Tv], keys [R])
@@ -308,15 +309,17 @@ def _bookkeeping(state: RunState, learner, objective, g, best, champions, valida
         champion_generation=pick(jnp.full((n,), g, jnp.int32), state.champion_generation))
 
 
-def trial_means(stats) -> tuple[jax.Array, jax.Array]:
+def trial_means(stats, behaviour=None) -> tuple[jax.Array, jax.Array]:
     """Each run's mean fitness ``[R, P]`` and behaviour ``[R, 3, P]`` over its trials, from a grouped
-    evaluation's :class:`~kx.sim.types.EpisodeStats` ``[R, P, T]``, by the run loop's own operations on
+    evaluation's :class:`~kx.sim.types.EpisodeStats` ``[R, P, T]`` (``behaviour``: other rows ``[3, R, P,
+    T]`` than its own, an objective's reading), by the run loop's own operations on
     each run's own ``[P, T]`` slice. The mean over the last axis of the whole ``[R, P, T]`` rounds
     differently in the last bit for some shapes (10 x 50 x 30, CMA-ES's population: 296 of 500 means on
     random values; none at NEAT's 150), and a run's trajectory then drifts from the run's alone."""
     n = stats.fitness.shape[0]
+    behaviour = stats.behaviour if behaviour is None else behaviour
     return (jnp.stack([stats.fitness[r].mean(axis=1) for r in range(n)]),
-            jnp.stack([stats.behaviour[:, r].mean(axis=2) for r in range(n)]))
+            jnp.stack([behaviour[:, r].mean(axis=2) for r in range(n)]))
 
 
 class RunGroup:
@@ -448,7 +451,9 @@ class RunGroup:
         counters = ev.EvalCounters()
         stats = self.evaluate(population, starts, jnp.stack([t.eval for t in trials]), counters)
         fitness, behaviour = trial_means(stats)  # [R, P], [R, 3, P]
-        score, objective, obj_metrics = self._score(fitness, behaviour, state.objective)
+        own = self.objective.behaviour_of(stats)  # the objective's reading of the behaviour (None: the world's)
+        selected = behaviour if own is None else trial_means(stats, own)[1]
+        score, objective, obj_metrics = self._score(fitness, selected, state.objective)
         jax.block_until_ready((fitness, score))
         t1 = time.perf_counter()
         learner, m = self._tell(jax.vmap(lambda k: streams.learner_step(k, g))(state.key), population, score,

@@ -110,11 +110,16 @@ def design() -> dict:
     }
 
 
+#: what a start state draws from its key (the rest of :class:`kx.sim.types.State` starts at constants): the
+#: fields the test states' digest covers, so that a counter added to the state later changes no digest
+START_FIELDS = ("keeper_x", "keeper_y", "taker_x", "taker_y", "holder", "ball_x", "ball_y")
+
+
 def _states_digest(states) -> str:
     h = hashlib.sha256()
-    for f in dataclasses.fields(states):
-        a = np.ascontiguousarray(np.asarray(getattr(states, f.name)))
-        h.update(f"{f.name}:{a.dtype.str}{a.shape}".encode())
+    for name in START_FIELDS:
+        a = np.ascontiguousarray(np.asarray(getattr(states, name)))
+        h.update(f"{name}:{a.dtype.str}{a.shape}".encode())
         h.update(a.tobytes())
     return "sha256:" + h.hexdigest()
 

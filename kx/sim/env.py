@@ -125,7 +125,7 @@ def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> Sta
         dir_x=jnp.ones((), jnp.int32), dir_y=zero, substep=zero,
         kicker=-jnp.ones((), jnp.int32), t=zero,
         done=jnp.zeros((), bool), reason=zero, passes=zero, contest=zero, dispersion_sum=zero,
-        ball_centre_sum=zero,
+        ball_centre_sum=zero, decisions=zero,
     )
 
 
@@ -249,6 +249,7 @@ def transition(state: State, action: jax.Array, noise: jax.Array, params: KeepAw
         passes=jnp.where(alive, passes, state.passes), contest=contest,
         dispersion_sum=state.dispersion_sum + jnp.where(alive, disp, 0),
         ball_centre_sum=state.ball_centre_sum + jnp.where(alive, centre, 0),
+        decisions=state.decisions + (alive & holding).astype(jnp.int32),
     )
 
 
@@ -540,10 +541,10 @@ def episode_stats(state: State, params: KeepAwayParams, config: KeepAwayConfig) 
     corners); the ball's distance from the centre (bound: half the diagonal).
     """
     return stats_from_counts(state.t, state.reason, state.passes, state.dispersion_sum,
-                             state.ball_centre_sum, params, config)
+                             state.ball_centre_sum, state.decisions, params, config)
 
 
-def stats_from_counts(t, reason, passes, dispersion_sum, ball_centre_sum, params: KeepAwayParams,
+def stats_from_counts(t, reason, passes, dispersion_sum, ball_centre_sum, decisions, params: KeepAwayParams,
                       config: KeepAwayConfig) -> EpisodeStats:
     """:func:`episode_stats` from an episode's integer counters (all ``[*B]``)."""
     lost = (reason == Reason.INTERCEPTED) | (reason == Reason.TACKLED) | (reason == Reason.OUT_OF_FIELD)
@@ -560,7 +561,8 @@ def stats_from_counts(t, reason, passes, dispersion_sum, ball_centre_sum, params
     disp = dispersion_sum.astype(jnp.float32) / (steps * n_pairs * DIST_SCALE * disp_bound)
     centre = ball_centre_sum.astype(jnp.float32) / (steps * DIST_SCALE * centre_bound)
     behaviour = jnp.stack([jnp.minimum(rate, 1.0), jnp.minimum(disp, 1.0), jnp.minimum(centre, 1.0)])
-    return EpisodeStats(fitness=fitness, iterations=t, reason=reason, passes=passes, behaviour=behaviour)
+    return EpisodeStats(fitness=fitness, iterations=t, reason=reason, passes=passes, behaviour=behaviour,
+                        decisions=decisions)
 
 
 def as_numpy(state: State) -> dict[str, np.ndarray]:

@@ -168,7 +168,7 @@ def advance(state, lane_params, noise_word, lane_id, keys, group_size, params, c
 # 6.3M live-steps/s, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M.
 SHRINK = 0.8
 
-COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum")
+COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum", "decisions")
 
 # no iteration cap inside a rung: every episode ends by max_iterations, so the loop ends by itself
 _NO_CAP = np.int32(2**31 - 1)
@@ -198,7 +198,7 @@ def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, conf
     None: packed, NEAT's networks were copied once more per rung and its evaluation took 15% longer);
     ``scalars`` holds the params, the run groups' size and their ``n_groups`` keys of PRNG ``impl``
     (:func:`kx.sim.lanes.pack_scalars`). Returns the compacted lanes and parameters (none for the last rung), the
-    counters of every lane before the compaction and its lane id, stacked ``[6, lanes]``
+    counters of every lane before the compaction and its lane id, stacked ``[7, lanes]``
     (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the iterations run
     and the live lanes ``[n_dev, 2]``."""
     def local(rows, lane_params, scalars, table):
@@ -207,7 +207,7 @@ def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, conf
         params, group_size, keys = lanes.unpack_scalars(scalars, n_groups, impl)
         state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
                                          jnp.int32(width // n_dev), table, policy=policy, config=config)
-        record = jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id])  # [6, lanes]: one transfer
+        record = jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id])  # [7, lanes]: one transfer
         if not width:
             return record, progress
         # the state's rows anew, the rest (row index, noise word, id) as they came
@@ -255,7 +255,7 @@ def _prepare(starts, policy_params, keys, *, shared, n_groups, n_pol, n_trials, 
 
 @jax.jit
 def _stacked(records, progress):
-    """Every rung's record ``[6, w]`` side by side and every rung's progress stacked, for one transfer each."""
+    """Every rung's record ``[7, w]`` side by side and every rung's progress stacked, for one transfer each."""
     return jnp.concatenate(records, axis=1), jnp.stack(progress)
 
 

@@ -34,6 +34,7 @@ class RefState:
     contest: int = 0
     dispersion_sum: int = 0
     ball_centre_sum: int = 0
+    decisions: int = 0
 
     @classmethod
     def from_arrays(cls, a: dict) -> "RefState":
@@ -47,6 +48,7 @@ class RefState:
             substep=i(a["substep"]), kicker=i(a["kicker"]), t=i(a["t"]),
             done=bool(a["done"]), reason=i(a["reason"]), passes=i(a["passes"]),
             contest=i(a["contest"]), dispersion_sum=i(a["dispersion_sum"]), ball_centre_sum=i(a["ball_centre_sum"]),
+            decisions=i(a["decisions"]),
         )
 
     def as_dict(self) -> dict:
@@ -59,7 +61,7 @@ class RefState:
             "kicker": self.kicker, "t": self.t, "done": self.done,
             "reason": self.reason, "passes": self.passes, "contest": self.contest,
             "dispersion_sum": self.dispersion_sum,
-            "ball_centre_sum": self.ball_centre_sum,
+            "ball_centre_sum": self.ball_centre_sum, "decisions": self.decisions,
         }
 
 
@@ -146,6 +148,7 @@ def step(s: RefState, action: int, noise: int, cfg: KeepAwayConfig, max_iteratio
 
     # 1-2. Decision and kick.
     if s.holder >= 0:
+        s.decisions += 1
         target = action if 0 <= action < nk else s.holder
         if target != s.holder:
             d = (s.keepers[target][0] - s.ball[0], s.keepers[target][1] - s.ball[1])

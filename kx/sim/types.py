@@ -205,6 +205,7 @@ class State:
     contest: jax.Array  # [*B] consecutive held iterations a taker has contested the ball (see tackle_iterations)
     dispersion_sum: jax.Array  # [*B] sum over iterations of the sum over keeper pairs of DIST_SCALE*dist
     ball_centre_sum: jax.Array  # [*B] sum over iterations of DIST_SCALE * dist(ball cell, field centre)
+    decisions: jax.Array  # [*B] live iterations that began with a keeper holding the ball (its decision)
 
     @property
     def batch_shape(self) -> tuple[int, ...]:
@@ -220,3 +221,4 @@ class EpisodeStats:
     reason: jax.Array  # Reason
     passes: jax.Array  # completed passes
     behaviour: jax.Array  # [3, *B] normalised (passes, keeper dispersion, ball distance from centre)
+    decisions: jax.Array  # the holders' decisions (live iterations that began with the ball held)
