@@ -383,32 +383,34 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
 
 
 def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeypatch):
-    """The protocol's ETA: each run to go at the mean wall time of the finished runs of its method, phase
-    and task (results.csv's, then this process's), the current group less what it has run; kinds with no
-    finished run are counted apart, not guessed."""
+    """The protocol's ETA: each run to go at the mean wall time of the finished runs of its cell (results.csv's,
+    then this process's), else of its method, phase and task; the current group less what it has run; runs
+    with neither are counted apart, not guessed."""
     clock = [100.0]
     monkeypatch.setattr(t3.time, "perf_counter", lambda: clock[0])
-    row = lambda m, p, t, w: {"method": m, "phase": p, "target": t, "wall_seconds": str(w)}  # noqa: E731
-    rows = [row("neat", "target", "5v3", 100), row("neat", "target", "5v3", 140), row("neat", "source", "3v2", 20),
-            row("neat", "target", "4v3", 50)]
-    spec = lambda p, t, i: t3.RunSpec("neat", "none" if p == "target" else "fitness", p, t, i)  # noqa: E731
-    todo = [[spec("target", "5v3", 0), spec("target", "5v3", 1)], [spec("source", "3v2", 2)],
-            [spec("target", "6v4", 0)], [spec("target", "5v3", 2)]]
+    row = lambda s, p, t, w: {"method": "neat", "setup": s, "phase": p, "target": t, "wall_seconds": str(w)}  # noqa: E731
+    rows = [row("none", "target", "5v3", 100), row("none", "target", "5v3", 140), row("fitness", "source", "3v2", 20),
+            row("none", "target", "4v3", 50), row("fitness", "target", "5v3", 300)]
+    spec = lambda s, p, t, i: t3.RunSpec("neat", s, p, t, i)  # noqa: E731
+    todo = [[spec("none", "target", "5v3", 2), spec("none", "target", "5v3", 3)], [spec("fitness", "source", "3v2", 2)],
+            [spec("none", "target", "6v4", 0)], [spec("fitness", "target", "5v3", 2)],
+            [spec("novelty", "target", "5v3", 2)]]
     lines = []
     progress = t3._Progress(lines.append, todo, 3, 9, rows)
     progress.start(todo[0][0], "group")
-    clock[0] += 30.0  # the current group (2 x 120 s) has run 30 s: 210 s left; then 20 and 120; 6v4 unknown
-    assert progress.eta() == (210.0 + 20.0 + 120.0, 3, 1)
+    clock[0] += 30.0
+    # the current group (2 x 120 s, its cell's mean) has run 30 s: 210 s left; the source 20; 6v4 unknown;
+    # fitness 5v3 its cell's 300; novelty 5v3, a cell with none finished, its kind's mean (100, 140, 300)
+    assert progress.eta() == (210.0 + 20.0 + 300.0 + 180.0, 4, 1)
     progress.line("gen 3/50 2 runs  best 0.5  mean 0.2")
-    assert lines == ["[3/9 runs | group] gen 3/50  best 0.5  protocol ETA 5.8 min (from 3 finished runs; 1 runs of "
+    assert lines == ["[3/9 runs | group] gen 3/50  best 0.5  protocol ETA 11.8 min (from 4 finished runs; 1 runs of "
                      "kinds with none finished not counted)"]
     progress.finish(0)
-    progress.add(row("neat", "target", "5v3", 60))  # a run of this process: its kind's mean falls to 100 s
+    progress.add(row("none", "target", "5v3", 60))  # a run of this process: its cell's mean falls to 100 s
     progress.start(todo[1][0], "next")
-    assert progress.eta() == (20.0 + 100.0, 4, 1)
-    assert t3._Progress(lines.append, [[spec("target", "6v4", 1)]], 0, 1, rows).eta_text().startswith(
+    assert progress.eta() == (20.0 + 300.0 + 150.0, 5, 1)
+    assert t3._Progress(lines.append, [[spec("none", "target", "6v4", 1)]], 0, 1, rows).eta_text().startswith(
         "  protocol ETA unknown")
-
 
 def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
     for argv, want in ((["table3", "--out", str(tmp_path / "a"), "--methods", "neat,sarsa"], "--methods: allowed neat"),

@@ -270,22 +270,25 @@ def differences(recorded: dict, row: dict, fields: Iterable[str]) -> list[str]:
     return out
 
 
-def _kind(row_or_spec) -> tuple[str, str, str]:
-    """What a run's cost depends on: its method, phase and task."""
+def _kinds(row_or_spec) -> tuple[tuple, tuple]:
+    """What a run's cost depends on, finest first: its cell (method, setup, phase, task: a transferred
+    population plays longer episodes from its first generation), then its method, phase and task."""
     if isinstance(row_or_spec, RunSpec):
-        return row_or_spec.method, row_or_spec.phase, row_or_spec.target
-    return row_or_spec["method"], row_or_spec["phase"], row_or_spec["target"]
+        m, s, p, t = row_or_spec.method, row_or_spec.setup, row_or_spec.phase, row_or_spec.target
+    else:
+        m, s, p, t = (row_or_spec[k] for k in ("method", "setup", "phase", "target"))
+    return (m, s, p, t), (m, p, t)
 
 
 class _Progress:
     """The protocol's progress line: runs done of total, the current group's generation, and an ETA.
 
     The ETA costs every run still to go at the mean wall time per run (``wall_seconds``: its share of its
-    group's time) of the finished runs of its method, phase and task in results.csv, those of this
-    process included; the current group is charged what it has left of its runs' mean (at least
-    nothing). A run of a kind with no finished run is not costed, and the line says how many such runs
-    there are and on how many finished runs the estimate rests. (Extrapolating this process's first
-    generations instead underestimates: their episodes are short.)"""
+    group's time) of the finished runs of its cell in results.csv, those of this process included, or
+    where its cell has none, of its method, phase and task; the current group is charged what it has left
+    of its runs' mean (at least nothing). A run with neither is not costed, and the line says how many
+    such runs there are and on how many finished runs the estimate rests. (Extrapolating this process's
+    first generations instead underestimates: their episodes are short.)"""
 
     def __init__(self, log, todo: list[list[RunSpec]], done: int, total: int, rows: list[dict]):
         self.log, self.todo, self.done, self.total = log, [list(c) for c in todo], done, total
@@ -296,7 +299,8 @@ class _Progress:
         self.current = None
 
     def add(self, row: dict) -> None:
-        self.walls.setdefault(_kind(row), []).append(float(row["wall_seconds"]))
+        for kind in _kinds(row):
+            self.walls.setdefault(kind, []).append(float(row["wall_seconds"]))
 
     def start(self, spec: RunSpec, what: str | None = None):
         self.current, self.what, self.t0 = spec, what or spec.describe(), time.perf_counter()
@@ -311,14 +315,20 @@ class _Progress:
         for i, chunk in enumerate(self.todo):
             cost = 0.0
             for spec in chunk:
-                walls = self.walls.get(_kind(spec))
-                if not walls:
+                kind = next((k for k in _kinds(spec) if self.walls.get(k)), None)
+                if kind is None:
                     unknown += 1
                     continue
-                basis.add(_kind(spec))
-                cost += sum(walls) / len(walls)
+                basis.add(kind)
+                cost += sum(self.walls[kind]) / len(self.walls[kind])
             seconds += max(cost - (time.perf_counter() - self.t0), 0.0) if i == 0 else cost
-        return seconds, sum(len(self.walls[k]) for k in basis), unknown
+        # the finished runs the figure rests on, each once (a cell's runs are also its kind's)
+        cells = {k for k in basis if len(k) == 4}
+        kinds = {k for k in basis if len(k) == 3}
+        rest = sum(len(self.walls[k]) for k in cells)
+        rest += sum(len(self.walls[k]) - sum(len(self.walls[c]) for c in cells if (c[0], c[2], c[3]) == k)
+                    for k in kinds)
+        return seconds, rest, unknown
 
     def eta_text(self) -> str:
         seconds, basis, unknown = self.eta()
