@@ -186,8 +186,8 @@ VARYING = ("seed", "transfer.source")
 #: call 128 s, 4 a call 117 s, one a call 84 s for the same 26M live steps; at generation 10 of 3v2
 #: (short episodes) one call and eight took the same 4.5 s. The budget is this machine's L3 cache.
 #: Measured again with the BEV decision that reads each lane's weights inside its chains (2026-12-03,
-#: /tmp script on the trained 4v3 fixture of ``kx.bench policies`` replicated over R runs, each with its
-#: own start states; the same episodes either way, the NEAT protocol paused): a population 5 generations
+#: scripts/hyperneat_runs_per_call.py: a population replicated over R runs, each with its own start
+#: states; the same episodes either way, the NEAT protocol paused): a population 5 generations
 #: into 4v3, one call against one per run, R = 4 1.23x faster, R = 8 1.10x, R = 16 0.88x; a population 50
 #: generations into 4v3 (longer episodes), R = 4 0.91x (samples 0.75-1.08). Kept: no setting wins at both.
 CPU_TABLE_BYTES = 32 * 2**20
