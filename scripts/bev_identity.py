@@ -230,7 +230,10 @@ def main() -> None:
                     print(f"{task} {image}: the real table differs from the saved one's", flush=True)
                     bad += 1
                 from kx.sim.types import State
-                states = {s: State(**{f: jnp.asarray(old[f"{s}/state/{f}"]) for f in State.__dataclass_fields__})
+                # a counter the state gained after the save (decisions) starts at 0: the policy never reads it
+                states = {s: State(**{f: jnp.asarray(old[f"{s}/state/{f}"]) if f"{s}/state/{f}" in old
+                                      else jnp.zeros_like(jnp.asarray(old[f"{s}/state/holder"]))
+                                      for f in State.__dataclass_fields__})
                           for s in ("random", "real")}
             record = episodes(real, config, image)
             for sname, st in states.items():
