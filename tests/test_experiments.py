@@ -20,7 +20,7 @@ from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
-from kx.experiments import csvfile, measure, report, stats, sweep
+from kx.experiments import csvfile, design, measure, report, stats, sweep
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
@@ -173,6 +173,38 @@ def test_the_pooled_improvement_interval_is_a_stratified_bootstrap():
     assert ci.low < ci.value < ci.high
 
 
+def test_the_pooled_verdicts_follow_the_test_over_the_whole_family():
+    """report.pooled_tests on made-up cells: a clear effect the paper's way is supported, one against it
+    contradicted; Holm runs over the design's whole family (9 primary claims, the absent with p = 1); the
+    direction is the test's, z, even where the probability of improvement averaged over the targets points
+    the other way (a large target with a clear effect beside a small one against it)."""
+    rng = np.random.default_rng(8)
+    up = lambda n, shift: rng.normal(0.5 + shift, 0.05, n)  # noqa: E731
+    cells = {("neat", "fitness", "4v3"): up(20, 0.2), ("neat", "none", "4v3"): up(20, 0.0),
+             ("hyperneat", "novelty", "4v3"): up(20, -0.2), ("hyperneat", "fitness", "4v3"): up(20, 0.0),
+             ("neat", "novelty", "4v3"): up(20, 0.01)}
+    res = {r["claim"].key: r for r in report.pooled_tests(cells)}
+    assert set(res) == {"neat/fitness > neat/none", "hyperneat/novelty > hyperneat/fitness",
+                        "neat/novelty > neat/none", "neat/novelty > neat/fitness",
+                        "hyperneat/fitness > neat/fitness", "hyperneat/novelty > neat/novelty"}
+    assert res["neat/fitness > neat/none"]["verdict"] == "supported"
+    assert res["hyperneat/novelty > hyperneat/fitness"]["verdict"] == "contradicted"
+    assert res["hyperneat/novelty > hyperneat/fitness"]["way"] == -1
+    p = [res[k]["test"].p for k in res]
+    want = stats.holm(p + [1.0] * (len(report.design.PRIMARY) - len(p)))[:len(p)]
+    np.testing.assert_allclose([res[k]["holm"] for k in res], want)
+    assert all(r["level"] == report.design.ALPHA / 9 for r in res.values())
+    assert res["neat/fitness > neat/none"]["power"] > 0.8 and res["neat/fitness > neat/none"]["needed"] <= 10
+    # the paper's way by z in a big target, against it by P averaged over a big and a tiny target
+    # 4v3: 30 against 30, P(a > b) = 0.82; 5v3: 3 against 3, P = 0: averaged 0.41, but z = +3.5 (p = 0.0004)
+    cells = {("neat", "fitness", "4v3"): np.arange(30) / 30 + 0.4, ("neat", "none", "4v3"): np.arange(30) / 30,
+             ("neat", "fitness", "5v3"): np.array([0.1, 0.11, 0.12]),
+             ("neat", "none", "5v3"): np.array([0.9, 0.91, 0.92])}
+    r = next(r for r in report.pooled_tests(cells) if r["claim"].key == "neat/fitness > neat/none")
+    assert r["test"].z > 3 and r["test"].poi.value < 0.5 and r["way"] == 1
+    assert r["holm"] == pytest.approx(9 * r["test"].p) and r["verdict"] == "supported"
+
+
 # ------------------------------------------------------------------------------------------------- protocol
 
 def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their_own_source():
@@ -212,7 +244,11 @@ def test_every_committed_table3_run_is_built_again_as_it_ran(tmp_path):
     committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "table3"
     protocol = t3.Protocol.read(committed / "protocol.json")
     rows = t3.read_results(committed / "results.csv")
-    assert len(rows) >= 138
+    assert len(rows) >= 138 and len({t3.row_key(r) for r in rows}) == len(rows)
+    # the test states this code draws are those the folder's runs were measured on
+    recorded = json.loads((committed / "protocol.json").read_text())["test_states"]
+    assert (recorded["seed"], recorded["trials"]) == (protocol.seed, protocol.test_trials)
+    assert recorded["sha256"] == design.test_state_digests(protocol, (t3.SOURCE_TASK, *t3.TARGETS))
     cfgs = {t3.row_key(r): t3.config(protocol, t3.RunSpec(*t3.row_key(r)), tmp_path) for r in rows}
     for r in rows:
         run = t3.RunSpec(*t3.row_key(r))
@@ -323,63 +359,77 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
 
 def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
     """A protocol folder as a fresh clone has it (results.csv and protocol.json, no run directories) extends to
-    5v3: the fitness source is trained again, reproduces its row, and seeds the new target. A source whose row
-    the protocol's config would not give now, or test states this code would not draw, are refused before
-    any compute; a re-run that does not reproduce its row is set aside and seeds nothing."""
+    5v3: its two fitness sources are trained again as a group, reproduce their rows, and seed the new
+    targets. Refused before any compute: a source whose row the protocol's config would not give now, test
+    states or a design this code would not use, a finished source directory that is not the run of its row.
+    A re-run that does not reproduce its row is set aside and seeds nothing; the rest of its group is
+    checked all the same."""
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     out = tmp_path / "t3"
-    t3.run(out, protocol, t3.plan(("neat",), ("4v3",), ("fitness",), runs=1), log=lambda s: None)
+    t3.run(out, protocol, t3.plan(("neat",), ("4v3",), ("fitness",), runs=2), log=lambda s: None)
     committed = {n: (out / n).read_bytes() for n in ("results.csv", "protocol.json")}
     assert set(json.loads(committed["protocol.json"])) >= {"test_states", "design", "seed"}
     shutil.rmtree(out / "runs")
-    to_5v3 = t3.plan(("neat",), ("5v3",), ("fitness",), runs=1)
+    to_5v3 = t3.plan(("neat",), ("5v3",), ("fitness",), runs=2)
     rows = t3.read_results(out / "results.csv")
-    source = next(r for r in rows if r["phase"] == "source")
+    sources = {int(r["run"]): r for r in rows if r["phase"] == "source"}
+    src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
 
-    def refused(match, **changes):
-        edited = [dict(r, **changes) if r is source else r for r in rows]
-        csvfile.write(out / "results.csv", t3.FIELDS, edited)
+    def edit(run, **changes):
+        csvfile.write(out / "results.csv", t3.FIELDS, [dict(r, **changes) if r is sources[run] else r for r in rows])
+
+    def refused(match, run=0, **changes):
+        edit(run, **changes)
         with pytest.raises(t3.RunError, match=match):
             t3.run(out, protocol, to_5v3, log=lambda s: None)
-        assert not (out / "runs").exists()  # nothing ran
         (out / "results.csv").write_bytes(committed["results.csv"])
 
     refused(r"neat 3v2 source \(fitness\) run 0: its run directory .* is missing, and its row .*seed recorded 1,",
             seed="1")
     refused(r"generations recorded 3, now 2", generations="3")
-    states = json.loads(committed["protocol.json"])
-    states["test_states"]["sha256"]["5v3"] = "sha256:0"
-    outputs_json = out / "protocol.json"
-    outputs_json.write_text(json.dumps(states))
-    with pytest.raises(t3.RunError, match="test_states: this code draws other test states .*tasks 5v3"):
-        t3.run(out, protocol, to_5v3, log=lambda s: None)
-    assert not (out / "runs").exists()
-    outputs_json.write_bytes(committed["protocol.json"])
+    for field, value, match in (("test_states", "sha256:0", "test_states: this code draws other test states .*5v3"),
+                                ("design", 0.01, "design: the statistical design recorded before the runs differs "
+                                                 r"from this code's \(alpha\)")):
+        edited = json.loads(committed["protocol.json"])
+        if field == "test_states":
+            edited[field]["sha256"]["5v3"] = value
+        else:
+            edited[field]["alpha"] = value
+        (out / "protocol.json").write_text(json.dumps(edited))
+        with pytest.raises(t3.RunError, match=match):
+            t3.run(out, protocol, to_5v3, log=lambda s: None)
+    (out / "protocol.json").write_bytes(committed["protocol.json"])
+    assert not (out / "runs").exists()  # nothing ran
+
+    # run 0's row edited where only a re-run can tell (its max fitness): both sources re-run as a group, run
+    # 0's set aside, run 1's reproduced and kept; no target runs
+    lines = []
+    edit(0, max_fitness="0.5")
+    with pytest.raises(t3.RunError, match=r"1 of 2 sources do not reproduce their rows .*source \(fitness\) run 0 "
+                                          r"\(max_fitness recorded 0.5, now .*set aside in .*run00.rejected"):
+        t3.run(out, protocol, to_5v3, log=lines.append)
+    assert "2 finished sources without a run directory trained again first" in lines[0]
+    assert any(ln.endswith("source (fitness) run 1: trained again, its row reproduced (every column but the times)")
+               for ln in lines)
+    assert (src_dir / "run00.rejected" / "config.json").is_file() and not (src_dir / "run00").exists()
+    assert ckpt.steps(src_dir / "run01") == [1, 2] and not (out / "runs" / "neat" / "target-fitness").exists()
+    (out / "results.csv").write_bytes(committed["results.csv"])
+    # run 1's finished directory is not the run of a row with another curve: refused, read not computed
+    refused(r"run 1: its run directory .*run01 is not the run of its row .*best_validation from generation 2",
+            run=1, best_validation=sources[1]["best_validation"].split()[0] + " 0.125")
+    assert not (src_dir / "run00").exists()
 
     lines = []
     t3.run(out, protocol, to_5v3, log=lines.append)
     assert "1 finished sources without a run directory trained again first" in lines[0]
-    assert any("(again)] gen 2/2" in ln and ln.endswith("(from 1 finished runs; 1 runs of kinds with none finished "
+    assert any("(again)] gen 2/2" in ln and ln.endswith("(from 2 finished runs; 2 runs of kinds with none finished "
                                                        "not counted)") for ln in lines)
-    assert any(ln.endswith("neat 3v2 source (fitness) run 0: trained again, its row reproduced (every column but "
-                           "the times)") for ln in lines)
+    assert any(ln.endswith("source (fitness) run 0: trained again, its row reproduced (every column but the times)")
+               for ln in lines)
     after = (out / "results.csv").read_bytes()
-    assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 4  # the header, 2 rows and 5v3's
-    assert t3.read_results(out / "results.csv")[-1]["target"] == "5v3"
+    assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 7  # the header, 4 rows, 5v3's 2
+    assert [r["target"] for r in t3.read_results(out / "results.csv")[-2:]] == ["5v3", "5v3"]
     assert (out / "protocol.json").read_bytes() == committed["protocol.json"]
-
-    # a re-run that differs from its row (here the row's max_fitness was edited): set aside, no target runs
-    shutil.rmtree(out / "runs" / "neat" / "source-fitness")
-    shutil.rmtree(out / "runs" / "neat" / "target-fitness" / "5v3")
-    rows = t3.read_results(out / "results.csv")[:2]
-    source = rows[0] if rows[0]["phase"] == "source" else rows[1]
-    csvfile.write(out / "results.csv", t3.FIELDS, [dict(r, max_fitness="0.5") if r is source else r for r in rows])
-    with pytest.raises(t3.RunError, match=r"trained again to seed its targets, it does not reproduce its row .*"
-                                          r"max_fitness recorded 0.5, now .*set aside in .*run00.rejected"):
-        t3.run(out, protocol, to_5v3, log=lambda s: None)
-    assert (out / "runs" / "neat" / "source-fitness" / "3v2" / "run00.rejected" / "config.json").is_file()
-    assert not (out / "runs" / "neat" / "source-fitness" / "3v2" / "run00").exists()
-    assert not (out / "runs" / "neat" / "target-fitness" / "5v3").exists()
 
 
 def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeypatch):

@@ -357,6 +357,12 @@ def test_the_authors_archive_rule_adds_the_ten_most_novel_above_the_threshold():
     a, n = update(a, beh, nov, 0.03, fit)
     a, n = update(a, beh, nov, 0.03, fit)
     assert int(n) == 10 and int(a.size) == 25 and int(a.head) == 5 and int(a.added) == 30
+    # the ring: generation 3's 10 went to slots 20..24, then 0..4 (slots 5..19 keep generation 2's 10, then 1's)
+    entries, top = np.asarray(a.entries), np.asarray(beh)[order]
+    np.testing.assert_array_equal(entries[20:25], top[:5])
+    np.testing.assert_array_equal(entries[0:5], top[5:])
+    np.testing.assert_array_equal(entries[10:20], top)  # generation 2's
+    np.testing.assert_array_equal(entries[5:10], top[5:])  # generation 1's last five, not yet overwritten
     # fewer than 10 above the threshold: only those, the threshold strict
     few = jnp.full(40, 0.03, jnp.float32).at[3].set(0.5).at[5].set(0.04)
     a, n = update(nv.init_archive(25, 3), beh, few, 0.03, fit)

@@ -47,6 +47,8 @@ POWER_GOAL = 0.8
 POWER_RUNS = (5, 10, 15, 20, 25, 30, 35, 40, 50, 60, 80, 100)
 #: the measures, each its own families
 MEASURES = ("max_fitness", "test_fitness")
+#: the methods whose shipped configs (configs/<method>_<task>.py) the protocol runs
+METHOD_CONFIGS = ("neat", "hyperneat", "cma_es")
 #: runs a cell the protocol aims at, and up to how many a cell may be extended where power asks for it
 RUNS_PER_CELL, EXTEND_UP_TO = 20, 35
 
@@ -86,27 +88,34 @@ TITLES = {"transfer": "Policy transfer beats evolving from scratch",
 
 
 def design() -> dict:
-    """The design as protocol.json records it."""
+    """The design as protocol.json records it: its parameters, and under ``text`` their description (only the
+    parameters are compared when a folder is extended: rewording the description locks no folder out)."""
     from kx.experiments import stats
 
-    fam = lambda claims: [c.key for c in claims]  # noqa: E731
     return {
         "measures": list(MEASURES),
         "alpha": ALPHA,
-        "pooled_test": "van Elteren's stratified rank-sum test over the targets (weights 1/(n+1) per target, "
-                       "midranks, normal approximation with the tie correction), two-sided",
-        "effect": "probability of improvement averaged over the targets, stratified-bootstrap 95% interval "
-                  f"({stats.RESAMPLES} resamples, seed {stats.BOOTSTRAP_SEED})",
-        "correction": "Holm within each family and measure",
-        "primary": fam(PRIMARY),
-        "secondary (exploratory)": fam(SECONDARY),
-        "per_target": "two-sided Mann-Whitney U, Vargha-Delaney A, Holm over each table (detail)",
-        "power": f"the probability that the pooled test gives p < alpha / (family size) at the observed effect: "
-                 f"every cell's runs resampled with replacement to n runs ({stats.POWER_RESAMPLES} resamples, "
-                 f"seed {stats.BOOTSTRAP_SEED}); runs a cell for {POWER_GOAL:.0%}: the smallest n of "
-                 f"{list(POWER_RUNS)} that reaches it",
+        "primary": [c.key for c in PRIMARY],
+        "secondary (exploratory)": [c.key for c in SECONDARY],
+        "resamples": stats.RESAMPLES,
+        "bootstrap_seed": stats.BOOTSTRAP_SEED,
+        "power_resamples": stats.POWER_RESAMPLES,
+        "power_runs": list(POWER_RUNS),
+        "power_goal": POWER_GOAL,
         "runs_per_cell": RUNS_PER_CELL,
         "extend_up_to": EXTEND_UP_TO,
+        "text": {
+            "pooled_test": "van Elteren's stratified rank-sum test over the targets (weights 1/(n+1) per target, "
+                           "midranks, normal approximation with the tie correction), two-sided; its direction the "
+                           "sign of z",
+            "effect": "probability of improvement averaged over the targets, stratified-bootstrap 95% interval",
+            "correction": "Holm within each family and measure, over the whole family (claims without runs "
+                          "count with p = 1)",
+            "per_target": "two-sided Mann-Whitney U, Vargha-Delaney A, Holm over each table (detail)",
+            "power": "the probability that the pooled test gives p < alpha / (family size) in the observed "
+                     "direction, at the observed effect: every cell's runs resampled with replacement to n runs; "
+                     "the runs a cell for the goal: the smallest n of power_runs that reaches it",
+        },
     }
 
 
@@ -135,6 +144,11 @@ def test_state_digests(protocol, tasks) -> dict[str, str]:
     keys = streams.test(protocol.seed)
     out = {}
     for task in tasks:
+        worlds = {m: cfg_lib.load(cfg_lib.CONFIG_DIR / f"{m}_{task}.py", list(protocol.overrides)).sim.to_dict()
+                  for m in METHOD_CONFIGS}
+        if any(w != worlds["neat"] for w in worlds.values()):
+            raise RunError(f"sim: the methods' configs of {task} set other worlds ({worlds}); one digest of the "
+                           "test states per task assumes they are the same")
         cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"neat_{task}.py", list(protocol.overrides))
         exp = cfg_lib.validate(cfg)
         out[task] = _states_digest(env.reset_batch(keys.starts, protocol.test_trials, exp.sim_params, exp.sim))
@@ -164,8 +178,8 @@ def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] 
                 raise RunError(f"{path}: test_states: this code draws other test states than the folder's runs "
                                f"were measured on (tasks {', '.join(bad) or 'all'}): a run measured now could not "
                                "be compared with them; run the protocol in a new folder")
-        elif have[key] != value:
-            diff = sorted(k for k in set(have[key]) | set(value) if have[key].get(k) != value.get(k))
+        elif {k: v for k, v in have[key].items() if k != "text"} != {k: v for k, v in value.items() if k != "text"}:
+            diff = sorted(k for k in set(have[key]) | set(value) if k != "text" and have[key].get(k) != value.get(k))
             raise RunError(f"{path}: design: the statistical design recorded before the runs differs from this "
                            f"code's ({', '.join(diff)}); a design is fixed before the runs: change it in a new "
                            "folder")

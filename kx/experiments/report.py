@@ -188,23 +188,26 @@ def _strata(cells: dict, claim) -> tuple[list[str], list, list]:
 
 def pooled_tests(cells: dict) -> list[dict]:
     """Every claim of :data:`kx.experiments.design.CLAIMS` with runs in both its cells in some target: the
-    pooled test (:func:`stats.van_elteren`), Holm's correction within its family, the power at the observed
-    effect and runs a cell (at ALPHA / the family's size), the runs a cell 80% would need, and the verdict."""
+    pooled test (:func:`stats.van_elteren`), Holm's correction over its whole family as the design fixes it
+    (a claim without runs yet counts with p = 1, so a partial folder is corrected as the whole protocol
+    will be), the power in the observed direction at ALPHA / the family's size, with these runs and the
+    runs a cell 80% would need, and the verdict: its direction is the test's (the sign of z)."""
     out = []
-    for family in ("primary", "secondary"):
+    for claims in (design.PRIMARY, design.SECONDARY):
         fam = []
-        for claim in (c for c in design.CLAIMS if c.family == family):
+        for claim in claims:
             targets, a_by, b_by = _strata(cells, claim)
             if targets:
                 fam.append(dict(claim=claim, targets=targets, a_by=a_by, b_by=b_by, test=stats.van_elteren(a_by, b_by)))
-        for r, h in zip(fam, stats.holm([r["test"].p for r in fam])):
-            level = design.ALPHA / len(fam)
-            r["holm"] = float(h)
-            r["level"] = level
-            r["power"] = stats.power(r["a_by"], r["b_by"], level)
-            r["needed"] = stats.runs_needed(r["a_by"], r["b_by"], level, design.POWER_GOAL, design.POWER_RUNS)
-            up = r["test"].poi.value > 0.5
-            r["verdict"] = ("not decided" if r["holm"] >= design.ALPHA else "supported" if up else "contradicted")
+        padded = [r["test"].p for r in fam] + [1.0] * (len(claims) - len(fam))
+        level = design.ALPHA / len(claims)
+        for r, h in zip(fam, stats.holm(padded)):
+            way = int(np.sign(r["test"].z))
+            r.update(holm=float(h), level=level, way=way,
+                     power=stats.power(r["a_by"], r["b_by"], level, direction=way) if way else 0.0,
+                     needed=stats.runs_needed(r["a_by"], r["b_by"], level, design.POWER_GOAL, design.POWER_RUNS,
+                                              direction=way) if way else None)
+            r["verdict"] = ("not decided" if r["holm"] >= design.ALPHA else "supported" if way > 0 else "contradicted")
         out += fam
     return out
 
@@ -255,8 +258,7 @@ def _verdicts(by_measure: dict) -> list[str]:
             lines.append(f"- {measure}: **{overall}**.")
             for r in rs:
                 t = r["test"]
-                way = ("the paper's way" if t.poi.value > 0.5 else
-                       "against the paper" if t.poi.value < 0.5 else "neither way")
+                way = {1: "the paper's way", -1: "against the paper", 0: "neither way"}[r["way"]]
                 lines.append(f"  - {_label(r['claim'])} ({', '.join(r['targets'])}): {r['verdict']}; P(a > b) = "
                              f"{t.poi.value:.2f} [{_f(t.poi.low, 2)}, {_f(t.poi.high, 2)}] ({way}), mean difference "
                              f"{t.diff:+.3f}, Holm p = {_p(r['holm'])}"
@@ -454,9 +456,10 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     for measure in MEASURES:
         md += [f"### Primary family ({measure})", "",
                f"P(a > b): the probability of improvement averaged over the targets, with its stratified-bootstrap 95% "
-               f"CI; z and p: van Elteren's test; power: the probability of p < {design.ALPHA} / (the family's size), "
-               f"either way, at the observed effect, resampling each cell's runs ({stats.POWER_RESAMPLES} "
-               "resamples), with these runs and with the runs a cell shown.", ""]
+               f"CI; z and p: van Elteren's test (its sign, the direction); Holm over the family the design fixes "
+               f"(claims without runs count with p = 1); power: the probability of p < {design.ALPHA} / (the "
+               f"family's size) in the observed direction, at the observed effect, resampling each cell's runs "
+               f"({stats.POWER_RESAMPLES} resamples), with these runs and with the runs a cell shown.", ""]
         md += _pooled_table(pooled[measure], "primary") + [""]
         md += [f"### Secondary family, exploratory ({measure})", "",
                "kx's additions: novelty without transfer, transfer with novelty on both sides (the comparison the "

@@ -235,21 +235,26 @@ def pooled_improvement(a_by, b_by) -> Interval:
 
 
 def power(a_by, b_by, level: float, runs: int | None = None, resamples: int = POWER_RESAMPLES,
-          seed: int = BOOTSTRAP_SEED) -> float:
+          seed: int = BOOTSTRAP_SEED, direction: int = 0) -> float:
     """The probability that :func:`van_elteren` gives p < ``level`` at the observed effect: every cell's runs
-    resampled with replacement to ``runs`` runs (``None``: each cell's own count), ``resamples`` times."""
+    resampled with replacement to ``runs`` runs (``None``: each cell's own count), ``resamples`` times.
+    ``direction`` +1 or -1: only significance with z of that sign counts (the observed direction); 0:
+    either."""
+    if direction not in (-1, 0, 1):
+        raise ValueError(f"direction: allowed -1, 0, 1, got {direction!r}")
     strata = _strata(a_by, b_by)
     rng = np.random.default_rng(seed)
     draw = lambda v: v[rng.integers(0, v.size, size=(resamples, runs or v.size))]  # noqa: E731
-    z = van_elteren_z([(draw(a), draw(b)) for a, b in strata])
-    p = np.where(np.isnan(z), 1.0, 2 * scipy.stats.norm.sf(np.abs(np.nan_to_num(z))))
-    return float((p < level).mean())
+    z = np.nan_to_num(van_elteren_z([(draw(a), draw(b)) for a, b in strata]))
+    p = 2 * scipy.stats.norm.sf(np.abs(z))
+    way = np.ones_like(z, bool) if direction == 0 else (np.sign(z) == direction)
+    return float(((p < level) & way).mean())
 
 
-def runs_needed(a_by, b_by, level: float, goal: float, candidates) -> int | None:
+def runs_needed(a_by, b_by, level: float, goal: float, candidates, direction: int = 0) -> int | None:
     """The smallest run count of ``candidates`` (ascending) at which :func:`power` reaches ``goal``; ``None``
     if none does."""
     for n in candidates:
-        if power(a_by, b_by, level, runs=n) >= goal:
+        if power(a_by, b_by, level, runs=n, direction=direction) >= goal:
             return int(n)
     return None

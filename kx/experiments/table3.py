@@ -98,8 +98,11 @@ class Protocol:
         """The protocol of a ``protocol.json`` (its records beside the parameters, ``design`` and
         ``test_states``, are :mod:`kx.experiments.design`'s)."""
         have = json.loads(pathlib.Path(path).read_text())
-        fields = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: tuple(v) if k == "overrides" else v for k, v in have.items() if k in fields})
+        fields = [f.name for f in dataclasses.fields(cls)]
+        missing = [f for f in fields if f not in have]
+        if missing:
+            raise RunError(f"{path}: not a kx table3 protocol.json (missing {', '.join(missing)})")
+        return cls(**{k: tuple(have[k]) if k == "overrides" else have[k] for k in fields})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -205,20 +208,27 @@ def curve(row: dict, name: str) -> list[float]:
 
 # ------------------------------------------------------------------------------------------------ running
 
+def _same_protocol(out: pathlib.Path, protocol: Protocol) -> bool:
+    """Whether ``out`` already has a protocol.json; ``RunError`` with the differences when it holds another
+    protocol. Writes nothing."""
+    path = out / "protocol.json"
+    if not path.is_file():
+        return False
+    have, want = json.loads(path.read_text()), protocol.to_json()
+    diff = [f"{k}: {have.get(k)!r} in {path}, {want[k]!r} now" for k in want if have.get(k) != want[k]]
+    if diff:
+        raise RunError(f"{out} holds another protocol ({'; '.join(diff)}): use another --out, or the same "
+                       "parameters to add runs to it")
+    return True
+
+
 def _open(out: pathlib.Path, protocol: Protocol) -> bool:
     """Creates ``out`` with its protocol.json, or checks that an existing one is the same protocol; whether it
     created the file."""
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "protocol.json"
-    want = protocol.to_json()
-    if path.is_file():
-        have = json.loads(path.read_text())
-        diff = [f"{k}: {have.get(k)!r} in {path}, {want[k]!r} now" for k in want if have.get(k) != want[k]]
-        if diff:
-            raise RunError(f"{out} holds another protocol ({'; '.join(diff)}): use another --out, or the same "
-                           "parameters to add runs to it")
+    if _same_protocol(out, protocol):
         return False
-    run_outputs.write_json(path, want)
+    out.mkdir(parents=True, exist_ok=True)
+    run_outputs.write_json(out / "protocol.json", protocol.to_json())
     return True
 
 
@@ -382,6 +392,19 @@ def _set_aside(d: pathlib.Path) -> pathlib.Path:
     return aside
 
 
+def directory_differences(d: pathlib.Path, recorded: dict) -> list[str]:
+    """Where a finished run directory's metrics.csv differs from the run's recorded row: its curves and its
+    maximum training fitness (read from the files, no compute)."""
+    import csv
+
+    with (pathlib.Path(d) / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    have = {"best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
+            "best_validation": " ".join(format(float(r["best_validation"]), ".9g") for r in rows),
+            "max_fitness": max((float(r["best_fitness"]) for r in rows), default=float("nan"))}
+    return differences(recorded, have, ("max_fitness", *CURVES))
+
+
 def missing_sources(out: pathlib.Path, protocol: Protocol, specs: list[RunSpec], recorded: dict) -> list[RunSpec]:
     """The finished sources (a row in results.csv) of the unfinished transfer runs of ``specs`` whose run
     directory does not hold their final checkpoint (a fresh clone has only results.csv): they are trained
@@ -406,10 +429,11 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     A folder holding only results.csv and protocol.json (a fresh clone) extends: a finished source that an
     unfinished target needs and whose run directory is missing is trained again first (runs are
     deterministic) and must reproduce its row in every column but the times, or the protocol stops there,
-    naming the run and the columns, with the re-run set aside as ``<run>.rejected``. Before any compute,
-    every config is checked, the protocol.json is the same protocol with the same test states
-    (:func:`kx.experiments.design.check_folder`), and each such source's row is what its config gives now
-    (:data:`PLANNED`)."""
+    naming the runs and the columns, with each re-run that differs set aside as ``<run>.rejected``. Before
+    any compute, every config is checked, the protocol.json is the same protocol with the same test states
+    (:func:`kx.experiments.design.check_folder`), each such source's row is what its config gives now
+    (:data:`PLANNED`), and a recorded source's finished run directory is the run of its row (its
+    metrics.csv curves: a re-run killed before its check is not taken as checked)."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
@@ -418,6 +442,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     results_path = out / "results.csv"
     rows = read_results(results_path)
     recorded = {row_key(r): r for r in rows}
+    _same_protocol(out, protocol)
     rebuild = missing_sources(out, protocol, specs, recorded)
     for src in rebuild:  # a recorded source must be the run its config gives now, before anything trains
         diff = differences(recorded[src.key], planned(protocol, src, out), PLANNED)
@@ -425,6 +450,16 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             raise RunError(f"{src.describe()}: its run directory {run_dir(out, src)} is missing, and its row in "
                            f"{results_path} is not the run the protocol's config gives now ({'; '.join(diff)}), so "
                            "it cannot be trained again to seed its targets: nothing was run")
+    for spec in specs:  # a recorded source's finished directory must be the run of its row (a re-run killed
+        src = source_of(spec)  # before its check, a directory from elsewhere): read, not computed
+        if (src is None or spec.key in recorded or src.key not in recorded or src in rebuild
+                or not measure.started(run_dir(out, src))):
+            continue
+        diff = directory_differences(run_dir(out, src), recorded[src.key])
+        if diff:
+            raise RunError(f"{src.describe()}: its run directory {run_dir(out, src)} is not the run of its row in "
+                           f"{results_path} ({'; '.join(diff)}): move it away to have it trained again and "
+                           "checked; nothing was run")
     created = _open(out, protocol)
     design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log)
     needed: list[RunSpec] = []
@@ -449,19 +484,17 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             f"seeds {', '.join(str(c.seed) for c in cfgs)}, {cfgs[0].generations} generations"
             + (f" ({resumed} resumed)" if resumed else ""))
         measured = measure.train_and_measure(cfgs, dirs, protocol.seed, protocol.test_trials, log=progress.line)
+        rejected = []
         for spec, finished in zip(chunk, measured):
             row = results_row(protocol, spec, out, finished)
-            if reproduce:
+            if reproduce:  # every run of the group compared, every one that differs set aside
                 diff = differences(recorded[spec.key], row, REPRODUCED)
                 if diff:
-                    aside = _set_aside(run_dir(out, spec))
-                    raise RunError(f"{spec.describe()}: trained again to seed its targets, it does not reproduce "
-                                   f"its row of {results_path} ({'; '.join(diff)}); the re-run is set aside in "
-                                   f"{aside}, and no target of it was run (the code or the machine gives other "
-                                   "results than those recorded: run the folder's targets where it was made, or "
-                                   "the whole protocol again in a new folder)")
-                log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced (every "
-                    "column but the times)")
+                    rejected.append(f"{spec.describe()} ({'; '.join(diff)}; set aside in "
+                                    f"{_set_aside(run_dir(out, spec))})")
+                else:
+                    log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced "
+                        "(every column but the times)")
                 continue
             rows.append(row)
             progress.add(row)
@@ -469,6 +502,11 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
                 f"{row['test_fitness']:.4f}")
             progress.done += 1
+        if rejected:
+            raise RunError(f"trained again to seed their targets, {len(rejected)} of {len(chunk)} sources do not "
+                           f"reproduce their rows of {results_path}: {'; '.join(rejected)}; no target of them was "
+                           "run (the code or the machine gives other results than those recorded: run the "
+                           "folder's targets where it was made, or the whole protocol again in a new folder)")
         progress.finish(0)
     want = {s.key for s in specs}
     return [r for r in rows if row_key(r) in want]
