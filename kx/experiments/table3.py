@@ -246,6 +246,11 @@ def planned(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> dict:
             "source_episodes": src_evals, "test_trials": protocol.test_trials, "protocol_seed": protocol.seed}
 
 
+def curves_of(metrics: list[dict]) -> dict:
+    """results.csv's :data:`CURVES` of a run from its metrics.csv rows: each generation's value, space-separated."""
+    return {c: " ".join(format(float(r[c]), ".9g") for r in metrics) for c in CURVES}
+
+
 def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: measure.Finished) -> dict:
     """The results row of the finished run of ``spec``, measured on the protocol's test states of its task
     (:func:`kx.experiments.measure.train_and_measure`): its metrics.csv curves, its validated champion's test
@@ -257,8 +262,7 @@ def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: 
         "champion_generation": int(finished.state.champion_generation),
         "wall_seconds": finished.wall_seconds,
         "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows) / share, 3),
-        "best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
-        "best_validation": " ".join(format(float(r["best_validation"]), ".9g") for r in rows),
+        **curves_of(rows),
     }
 
 
@@ -399,9 +403,7 @@ def directory_differences(d: pathlib.Path, recorded: dict) -> list[str]:
 
     with (pathlib.Path(d) / "metrics.csv").open() as f:
         rows = list(csv.DictReader(f))
-    have = {"best_so_far": " ".join(format(float(r["best_so_far"]), ".9g") for r in rows),
-            "best_validation": " ".join(format(float(r["best_validation"]), ".9g") for r in rows),
-            "max_fitness": max((float(r["best_fitness"]) for r in rows), default=float("nan"))}
+    have = {**curves_of(rows), "max_fitness": max((float(r["best_fitness"]) for r in rows), default=float("nan"))}
     return differences(recorded, have, ("max_fitness", *CURVES))
 
 
