@@ -82,33 +82,10 @@ def digest(table) -> str:
 
 
 def random_states(key, config, n):
-    import jax
-    import jax.numpy as jnp
+    """:func:`kx.sim.samples.varied_states`, the states tests/test_bev.py uses too."""
+    from kx.sim import samples
 
-    from kx.sim import env
-    from kx.sim.types import KeepAwayParams
-
-    params, w = KeepAwayParams(), config.field_size
-    k_reset, k_step, k_adv = jax.random.split(key, 3)
-    fresh = env.reset_batch(k_reset, n, params, config)
-
-    def one(s, k):
-        ka, kn = jax.random.split(k)
-        s = env.step(kn, s, jax.random.randint(ka, (n,), 0, config.n_keepers), params, config)
-        return s, s
-
-    _, stepped = jax.lax.scan(one, fresh, jax.random.split(k_step, 6))
-    stepped = [jax.tree.map(lambda a: a[i], stepped) for i in (0, 5)]
-    adv = []
-    for i, size in enumerate((3, 5)):
-        kk = jax.random.split(jax.random.fold_in(k_adv, i), 5)
-        lo = jax.random.randint(kk[0], (n,), 0, w - size + 1)
-        r = lambda k, m: lo + jax.random.randint(k, (m, n), 0, size)  # noqa: E731
-        holder = jnp.where(jnp.arange(n) % 4 == 0, -1, jax.random.randint(kk[4], (n,), 0, config.n_keepers))
-        adv.append(fresh.replace(keeper_x=r(kk[0], config.n_keepers), keeper_y=r(kk[1], config.n_keepers),
-                                 taker_x=r(kk[2], config.n_takers), taker_y=r(kk[3], config.n_takers),
-                                 holder=holder))
-    return jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), fresh, *stepped, *adv)
+    return samples.varied_states(key, config, n)
 
 
 def real_states(table, config, image, n_lanes=1024, iterations=350, every=7, keep=4096):

@@ -11,7 +11,7 @@ from conftest import TASKS, make_state
 
 from kx.hyperneat import bev
 from kx.neat.activations import ACTIVATIONS
-from kx.sim import env, observe
+from kx.sim import env, observe, samples
 from kx.sim.ops import fenced
 from kx.sim.policies import Shared
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
@@ -221,30 +221,8 @@ def random_table(key, g, n):
 
 @functools.partial(jax.jit, static_argnums=(1, 2))
 def random_states(key, config, n=48):
-    """Fresh resets, states stepped 1..6 iterations with random actions, and adversarial states (all
-    agents inside a 3 x 3 or 5 x 5 square, so that agents stack and sit on each other's paths; every
-    fourth nobody holds the ball)."""
-    params = KeepAwayParams()
-    k_reset, k_step, k_adv = jax.random.split(key, 3)
-    fresh = env.reset_batch(k_reset, n, params, config)
-
-    def one(s, k):
-        ka, kn = jax.random.split(k)
-        s = env.step(kn, s, jax.random.randint(ka, (n,), 0, config.n_keepers), params, config)
-        return s, s
-
-    _, stepped = jax.lax.scan(one, fresh, jax.random.split(k_step, 6))  # leaves [6, ..., n]
-    stepped = [jax.tree.map(lambda a: a[i], stepped) for i in (0, 5)]
-    adv = []
-    for i, size in enumerate((3, 5)):
-        kk = jax.random.split(jax.random.fold_in(k_adv, i), 5)
-        lo = jax.random.randint(kk[0], (n,), 0, W - size + 1)
-        r = lambda k, m: lo + jax.random.randint(k, (m, n), 0, size)  # noqa: E731
-        holder = jnp.where(jnp.arange(n) % 4 == 0, -1, jax.random.randint(kk[4], (n,), 0, config.n_keepers))
-        adv.append(fresh.replace(keeper_x=r(kk[0], config.n_keepers), keeper_y=r(kk[1], config.n_keepers),
-                                 taker_x=r(kk[2], config.n_takers), taker_y=r(kk[3], config.n_takers),
-                                 holder=holder))
-    return jax.tree.map(lambda *a: jnp.concatenate(a, axis=-1), fresh, *stepped, *adv)
+    """:func:`kx.sim.samples.varied_states`: resets, stepped states and adversarial ones."""
+    return samples.varied_states(key, config, n)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "image", "activation"))
