@@ -15,7 +15,7 @@ import pathlib
 
 LOOP_FIELDS = (
     "generation", "best_fitness", "mean_fitness", "median_fitness", "best_so_far", "best_score", "mean_score",
-    "mean_passes", "mean_dispersion", "mean_ball_centre", "champion_passes", "champion_validation",
+    "mean_passes", "mean_dispersion", "mean_ball_centre", "behaviour_spread", "champion_passes", "champion_validation",
     "best_validation", "best_validation_generation", "live_fraction", "live_steps", "eval_seconds",
     "evolve_seconds", "validation_seconds", "generation_seconds")
 TIMING_FIELDS = ("eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")

@@ -158,7 +158,8 @@ def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ:
         "mean_fitness": float(np.clip(f.mean(), f.min(), f.max())), "median_fitness": float(np.median(f)),
         "best_so_far": float(state.best_so_far), "best_score": float(s.max()), "mean_score": float(s.mean()),
         "mean_passes": float(beh[0].mean()), "mean_dispersion": float(beh[1].mean()),
-        "mean_ball_centre": float(beh[2].mean()), "champion_passes": float(beh[0, champ]),
+        "mean_ball_centre": float(beh[2].mean()), "behaviour_spread": behaviour_spread(beh),
+        "champion_passes": float(beh[0, champ]),
         "champion_validation": validation, "best_validation": float(state.champion_validation),
         "best_validation_generation": int(state.champion_generation),
     }
@@ -167,6 +168,14 @@ def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ:
     for k, v in obj_metrics.items():
         row[k] = _scalar(v)
     return row
+
+
+def behaviour_spread(beh: np.ndarray) -> float:
+    """How far apart a population's behaviours lie (``beh [3, P]``, each genome's trial means of the world's
+    behaviour: passes, dispersion, ball distance from the centre, each in [0, 1]): the mean Euclidean
+    distance of a genome's behaviour to the population's mean behaviour (0: every genome behaves alike)."""
+    b = np.asarray(beh, np.float64)
+    return float(np.sqrt(((b - b.mean(axis=1, keepdims=True)) ** 2).sum(axis=0)).mean())
 
 
 def _scalar(v):

@@ -1,12 +1,13 @@
-"""Experiments: ``python -m kx.experiments {table3,report,sweep}``.
+"""Experiments: ``python -m kx.experiments {table3,novelty,report,sweep}``.
 
     python -m kx.experiments table3 --runs 20 --out runs/table3            # the paper's protocol (SPEC section 6)
     python -m kx.experiments table3 --runs 5 --methods neat --targets 4v3 --out runs/t3   # a part of it
+    python -m kx.experiments novelty --out docs/novelty                   # the hybrid's readings (issue 32)
     python -m kx.experiments report runs/table3                            # report.md + PNGs from results.csv
     python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\
         --grid hyperneat.image=paper,authors --seeds 0-4 --out runs/image  # an ablation sweep
 
-``table3`` and ``sweep`` are resumable: run the same command again after a kill; finished runs are never
+``table3``, ``novelty`` and ``sweep`` are resumable: run the same command again after a kill; finished runs are never
 redone, a run killed half-way resumes from its checkpoint, and the same folder accumulates parts of one
 protocol. Both write their report when they finish.
 """
@@ -42,6 +43,16 @@ def main(argv: list[str] | None = None) -> int:
                    help="a config override for every run (population_size=50, trials=10, ...); repeatable")
     t.add_argument("--batch", type=int, default=16,
                    help="runs of one cell trained as one batched group (kx.evolve.group), at most; 1: one by one")
+    n = sub.add_parser("novelty", help="the novelty hybrid's readings over seeds (docs/novelty.md)")
+    n.add_argument("--out", required=True, help="the sweep's folder (one table3 folder per arm, report.md)")
+    n.add_argument("--arms", type=_list, default=None, help="the arms to run (default: every one)")
+    n.add_argument("--methods", type=_list, default=("neat", "hyperneat"))
+    n.add_argument("--phases", type=_list, default=("source", "target"))
+    n.add_argument("--runs", type=int, default=10, help="sources per arm and method (default 10)")
+    n.add_argument("--target-runs", type=_list, default=("neat=10", "hyperneat=5"), metavar="METHOD=N,...",
+                   help="4v3 transfers per arm and method (default neat=10,hyperneat=5)")
+    n.add_argument("--table3", default=None, help="the Table 3 folder (default: OUT/../table3)")
+    n.add_argument("--batch", type=int, default=16)
     r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
     r.add_argument("dir")
     s = sub.add_parser("sweep", help="every combination of a grid x seeds")
@@ -62,12 +73,27 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "report":
             d = pathlib.Path(args.dir)
-            if (d / "sweep.json").is_file():
+            if (d / "novelty.json").is_file():
+                from kx.experiments import novelty
+                print(novelty.write_report(d))
+            elif (d / "sweep.json").is_file():
                 from kx.experiments import sweep
                 print(sweep.write_report(d))
             else:
                 from kx.experiments import report
                 print(report.write(d))
+            return 0
+        if args.command == "novelty":
+            from kx.experiments import novelty
+            targets = {}
+            for item in args.target_runs:
+                m, _, v = item.partition("=")
+                if not v.isdigit():
+                    raise ValueError(f"--target-runs: allowed METHOD=N,..., got {item!r}")
+                targets[m] = int(v)
+            novelty.run(args.out, tuple(novelty.ARMS) if args.arms is None else args.arms, args.methods, args.phases,
+                        args.runs, targets, args.table3, batch=args.batch)
+            print(novelty.write_report(args.out))
             return 0
         for name in ("test_trials",) + (("runs", "source_generations", "target_generations")
                                         if args.command == "table3" else ()):

@@ -276,6 +276,11 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
                        jnp.where(sp_over > 0, 1.0 + params.threshold_step, 1.0))
     threshold = jnp.maximum(used_threshold * factor, params.threshold_min)
 
+    # Whether the fittest genome breeds: the children it is a parent of (its elite copy, a mutated copy or
+    # either side of a crossover). Under a score other than fitness (the novelty hybrid's) it need not be
+    # an elite, nor even in its species' parent pool.
+    crossed_child = ~(elite | mut_only)
+    from_fittest = (base_idx == champ) | (crossed_child & ((fitter == champ) | (weaker == champ)))
     better = f[champ] > state.best_fitness
     best_genome = jax.tree.map(lambda a, b: jnp.where(better, a, b), _take(population, champ), state.best_genome)
     new_state = NEATState(
@@ -310,6 +315,8 @@ def tell(key: jax.Array, population: Genome, score: jax.Array, state: NEATState,
         "species_overflow": sp_over,
         "new_nodes": counters.new_nodes,
         "new_links": counters.new_links,
+        "fittest_offspring": jnp.sum(from_fittest, dtype=I32),  # children of the fittest genome
+        "fittest_elite": jnp.any(elite & (base_idx == champ)).astype(I32),  # copied unchanged
     }
     return new_state, metrics
 

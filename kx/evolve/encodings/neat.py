@@ -34,7 +34,8 @@ from kx.neat.types import MAX_CONNS, NEATError, NEATParams, capacity, initial_co
 from kx.sim import observe
 
 NEAT_METRICS = ("n_species", "stagnant_species", "threshold", "mean_hidden", "mean_links", "champion_hidden",
-                "champion_links", "node_overflow", "link_overflow", "link_exhausted", "link_capped", "species_overflow")
+                "champion_links", "node_overflow", "link_overflow", "link_exhausted", "link_capped", "species_overflow",
+                "fittest_offspring", "fittest_elite")
 
 
 def neat_params_fields(params: NEATParams) -> dict:
