@@ -208,3 +208,29 @@ def test_add_link_draws_beyond_the_cap_are_skipped_and_counted(cap):
     elites = int(np.sum((np.asarray(m["species_sizes"]) > params.elitism_min_size) & (np.asarray(m["offspring"]) > 0)))
     assert int(m["link_capped"]) == 24 - elites - limit
 
+
+
+def test_the_fittest_genomes_children_are_counted():
+    """``fittest_offspring`` counts the children the fittest genome (by task fitness) is a parent of, and
+    ``fittest_elite`` whether it is copied unchanged; checked against the parents read from the weights."""
+    sizes = [10, 9, 5]
+    state = tagged_state(sizes)
+    fitness = 1.0 + jax.random.permutation(jax.random.key(8), P).astype(jnp.float32) / P
+    keys = jax.random.split(jax.random.key(9), 6)
+    f = np.asarray(fitness)
+    top = int(np.argmax(f))
+    sp = np.asarray(state.species)
+    elite_species = sizes[sp[top]] > QUIET.elitism_min_size
+    # selection on the fitness: the fittest genome heads its species' pool
+    new, m = _tell_keys()(keys, state.population, fitness, state, QUIET)
+    for r in range(keys.shape[0]):
+        carried = sum(top in par for par in parents_of(one(new.population, r)))
+        assert int(m["fittest_offspring"][r]) == carried > 0
+        assert int(m["fittest_elite"][r]) == int(elite_species)
+    # selection on a score that ranks the fittest genome last: it is outside every pool and has no child
+    score = jnp.asarray(f.max() + 1.0 - f)
+    new, m = jax.jit(jax.vmap(lambda k: alg.tell(k, state.population, score, state, QUIET, CFG,
+                                                     fitness=fitness)))(keys)
+    for r in range(keys.shape[0]):
+        assert not any(top in par for par in parents_of(one(new.population, r)))
+    assert np.all(np.asarray(m["fittest_offspring"]) == 0) and np.all(np.asarray(m["fittest_elite"]) == 0)

@@ -43,7 +43,7 @@ DIFFERENCES = [
     "- **Novelty's other readings.** The authors' HyperNEAT code archives the 10 most novel genomes a "
     "generation with no cap, and its behaviour counts every decision as a pass and ignores the ball's "
     "distance from the centre; kx follows the paper (archive 1000, threshold 0.03; passes, dispersion, ball "
-    "distance). A sweep of these readings is kx's issue 32.",
+    "distance). docs/novelty/report.md measures each reading over seeds, in the source and after transfer.",
     "- **The measure.** The paper reports the maximum over a run of the generation's best 30-trial training "
     "fitness, which rewards exploration and is biased upward by the noise of 30 trials; kx reports it and the "
     "run's validated champion on 1000 test states, which the claims are decided on as well.",
