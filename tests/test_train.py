@@ -494,3 +494,14 @@ def test_overrides_go_through_config_flags_with_tuples_and_nested_fields():
     c = ml_collections.ConfigDict({"shape": (1, 2), "inner": {"x": 1.0}})
     c = cfg_lib.apply_overrides(c, ["shape=(3, 4, 5)", "inner.x=0.5"])
     assert c.shape == (3, 4, 5) and c.inner.x == 0.5
+
+
+def test_the_eta_follows_the_last_generations_not_the_first():
+    clock = outputs.GenerationClock(window=3)
+    assert clock.tick(0.0) is None  # the first generation compiles: no estimate from it alone
+    assert clock.tick(1.0) == 1.0
+    assert clock.tick(2.0) == 1.0
+    assert clock.tick(4.0) == 4.0 / 3
+    assert clock.tick(8.0) == (8.0 - 1.0) / 3
+    # generations lengthening to 2, 4 and 8 s: the last three (14 s over 3), not all since the first (16 s over 5)
+    assert clock.tick(16.0) == (16.0 - 2.0) / 3 > (16.0 - 0.0) / 5

@@ -73,7 +73,7 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
         for run in runs:
             run.quiet = True
         total = cfgs[0].generations
-        stacked, members, done_here, t_first = None, None, 0, None
+        stacked, members, done_here, clock = None, None, 0, outputs.GenerationClock()
         while True:
             todo = [i for i, run in enumerate(runs) if not run.done and run.generation < total]
             if not todo:
@@ -92,8 +92,7 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
                 runs[i].record(GenerationResult(row=rows[j], state=run_state(host, j)))
             done_here += 1
             t_now = time.perf_counter()
-            t_first = t_now if done_here == 1 else t_first
-            per_gen = (t_now - t_first) / (done_here - 1) if done_here > 1 else None
+            per_gen = clock.tick(t_now)
             log(progress_line(rows, total, None if per_gen is None else per_gen * (total - g - 1), t_now - t_start))
             run_lib.maps_notice(log)
         return [run.rows[-1] if run.done else run.close() for run in runs]

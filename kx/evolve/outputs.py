@@ -76,6 +76,24 @@ def append_row(path: pathlib.Path, row: dict, fields) -> None:
         os.fsync(f.fileno())
 
 
+class GenerationClock:
+    """A run's seconds per generation for its ETA: the mean over the last ``window`` generations this process
+    ran, the first excluded (it compiles). Not the mean since the first: a run's episodes lengthen as its
+    teams learn to hold the ball, so early generations are short and an average over all of them
+    underestimates what is left (a 20-generation run printed "ETA 4 s" at generation 10 while taking
+    0.75 s a generation)."""
+
+    def __init__(self, window: int = 5):
+        self.window, self.stamps = window, []
+
+    def tick(self, now: float) -> float | None:
+        """Records the end of a generation at ``now``; the seconds per generation, or ``None`` after the first."""
+        self.stamps = (self.stamps + [now])[-(self.window + 1):]
+        if len(self.stamps) < 2:
+            return None
+        return (self.stamps[-1] - self.stamps[0]) / (len(self.stamps) - 1)
+
+
 def format_seconds(s: float) -> str:
     return f"{s:.0f} s" if s < 120 else f"{s / 60:.1f} min" if s < 7200 else f"{s / 3600:.1f} h"
 

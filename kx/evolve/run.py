@@ -190,7 +190,7 @@ class OpenRun:
     baselines: dict | None = None
     quiet: bool = False  # no progress line per generation (a batched group prints one for all its runs)
     done_here: int = 0
-    t_first: float | None = None
+    clock: outputs.GenerationClock = dataclasses.field(default_factory=outputs.GenerationClock)
     last_plot: float = -float("inf")
 
     @property
@@ -206,11 +206,9 @@ class OpenRun:
         self.rows.append(row)
         outputs.append_row(run_dir / "metrics.csv", row, self.trainer.fields)
         self.done_here += 1
-        # ETA from this process's own clock, over its generations after the first (which compiles), each
+        # ETA from this process's own clock, over its last generations after the first (which compiles), each
         # with its checkpoint and plot: never from metrics.csv, which may hold fewer rows (deleted, cut)
-        if self.done_here == 1:
-            self.t_first = t_step
-        per_gen = (t_step - self.t_first) / (self.done_here - 1) if self.done_here > 1 else None
+        per_gen = self.clock.tick(t_step)
         if not self.quiet:
             self.log(outputs.progress_line(row, cfg.generations,
                                           None if per_gen is None else per_gen * (cfg.generations - g - 1), enc))
