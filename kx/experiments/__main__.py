@@ -15,6 +15,7 @@ protocol. Both write their report when they finish.
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import sys
 
@@ -23,6 +24,32 @@ from kx import runtime
 
 def _list(text: str) -> tuple[str, ...]:
     return tuple(v for v in text.split(",") if v)
+
+
+def _processes_args(p: argparse.ArgumentParser) -> None:
+    """The options of a command that runs under several processes (kx.processes, docs/cluster.md)."""
+    g = p.add_argument_group("several processes (docs/cluster.md)")
+    g.add_argument("--processes", type=int, default=1,
+                   help="start this many local processes of the command, its runs dealt among them (testing)")
+    g.add_argument("--distributed", action="store_true",
+                   help="one of the processes a cluster launcher started (SLURM's srun, mpirun, Kubernetes)")
+    g.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="process 0's address (plain hosts)")
+    g.add_argument("--num-processes", type=int, default=None)
+    g.add_argument("--process-id", type=int, default=None)
+    g.add_argument("--start-timeout", type=float, default=300.0,
+                   help="seconds to wait for the coordinator and the other processes (default 300)")
+
+
+def _without_processes(argv: list[str]) -> list[str]:
+    out, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--processes":
+            skip = True
+        elif not a.startswith("--processes="):
+            out.append(a)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="4v3 transfers per arm and method (default neat=10,hyperneat=5)")
     n.add_argument("--table3", default=None, help="the Table 3 folder (default: OUT/../table3)")
     n.add_argument("--batch", type=int, default=16)
+    for q in (t, n):
+        _processes_args(q)
     r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
     r.add_argument("dir")
     s = sub.add_parser("sweep", help="every combination of a grid x seeds")
@@ -65,10 +94,32 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE")
     s.add_argument("--batch", type=int, default=16,
                    help="seeds of one combination trained as one batched group, at most; 1: one by one")
+    _processes_args(s)
     args = p.parse_args(argv)
 
+    from kx import processes
     from kx.evolve.config import ConfigError
     from kx.evolve.errors import RunError
+
+    shard = processes.ALONE
+    if args.command != "report":
+        if args.processes < 1:
+            print(f"python -m kx.experiments {args.command}: --processes: allowed an integer >= 1, got "
+                  f"{args.processes}", file=sys.stderr)
+            return 2
+        if args.processes > 1 and processes.ENV_COORDINATOR not in os.environ:
+            if args.distributed or args.coordinator:
+                print(f"python -m kx.experiments {args.command}: --processes starts local processes; a launcher's "
+                      "(--distributed) or an explicit --coordinator start them elsewhere: use one", file=sys.stderr)
+                return 2
+            return processes.launch_local("kx.experiments", _without_processes(list(sys.argv[1:] if argv is None
+                                                                                  else argv)), args.processes)
+        try:
+            shard = processes.initialize(args.coordinator, args.num_processes, args.process_id, args.distributed,
+                                         args.start_timeout)
+        except processes.ProcessError as e:
+            print(f"python -m kx.experiments {args.command}: {e}", file=sys.stderr)
+            return 2
 
     try:
         if args.command == "report":
@@ -92,8 +143,9 @@ def main(argv: list[str] | None = None) -> int:
                     raise ValueError(f"--target-runs: allowed METHOD=N,..., got {item!r}")
                 targets[m] = int(v)
             novelty.run(args.out, tuple(novelty.ARMS) if args.arms is None else args.arms, args.methods, args.phases,
-                        args.runs, targets, args.table3, batch=args.batch)
-            print(novelty.write_report(args.out))
+                        args.runs, targets, args.table3, batch=args.batch, shard=shard)
+            if shard.leader:
+                print(novelty.write_report(args.out))
             return 0
         for name in ("test_trials",) + (("runs", "source_generations", "target_generations")
                                         if args.command == "table3" else ()):
@@ -106,15 +158,17 @@ def main(argv: list[str] | None = None) -> int:
                                    source_generations=args.source_generations,
                                    target_generations=args.target_generations, overrides=tuple(args.set))
             specs = t3.plan(args.methods, args.targets, args.setups, args.runs)
-            t3.run(args.out, protocol, specs, batch=args.batch)
-            print(report.write(args.out))
+            t3.run(args.out, protocol, specs, batch=args.batch, shard=shard)
+            if shard.leader:
+                print(report.write(args.out))
         else:
             from kx.evolve.config import parse_seeds
             from kx.experiments import sweep
             sw = sweep.Sweep(config=args.config, grid=sweep.parse_grid(args.grid), seeds=tuple(parse_seeds(args.seeds)),
                              test_trials=args.test_trials, test_seed=args.test_seed, overrides=tuple(args.set))
-            sweep.run(args.out, sw, batch=args.batch)
-            print(sweep.write_report(args.out))
+            sweep.run(args.out, sw, batch=args.batch, shard=shard)
+            if shard.leader:
+                print(sweep.write_report(args.out))
         return 0
     except (ValueError, ConfigError, RunError) as e:
         print(f"python -m kx.experiments {args.command}: {e}", file=sys.stderr)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import io
 import pathlib
+from typing import Callable
 
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
@@ -38,3 +39,56 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
     for r in rows:
         w.writerow({k: cell_text(r[k]) for k in fields})
     run_outputs.write_text(path, buf.getvalue())
+
+
+# ------------------------------------------------------------------------------------ several processes
+#
+# Under several processes (kx.processes) each writes the rows of the runs it trains to a results file of its
+# own beside the experiment's (results.process<k>.csv); the leader merges them into the one file.
+
+def process_path(path: str | pathlib.Path, index: int) -> pathlib.Path:
+    """The results file process ``index`` writes beside ``path``."""
+    path = pathlib.Path(path)
+    return path.with_name(f"{path.stem}.process{index}{path.suffix}")
+
+
+def process_files(path: str | pathlib.Path) -> list[pathlib.Path]:
+    path = pathlib.Path(path)
+    return sorted(path.parent.glob(f"{path.stem}.process*{path.suffix}"),
+                  key=lambda p: int(p.stem.rpartition("process")[2] or 0))
+
+
+def read_all(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: Callable[[dict], tuple]) -> list[dict]:
+    """The rows of ``path`` and of the process files beside it not yet merged (each run once, the main file's
+    first): what every process of an experiment takes as finished."""
+    rows = read(path, fields, what)
+    seen = {key(r) for r in rows}
+    for p in process_files(path):
+        for r in read(p, fields, what):
+            if key(r) not in seen:
+                seen.add(key(r))
+                rows.append(r)
+    return rows
+
+
+def merge(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: Callable[[dict], tuple],
+          order: Callable[[dict], tuple]) -> list[dict]:
+    """Merges the process files beside ``path`` into it: its rows, then the others' new rows in ``order``,
+    written atomically, and only then the process files removed (a kill in between merges them again,
+    each run once). Returns the merged rows."""
+    path = pathlib.Path(path)
+    files = process_files(path)
+    rows = read(path, fields, what)
+    if not files:
+        return rows
+    seen = {key(r) for r in rows}
+    new = [r for p in files for r in read(p, fields, what)]
+    added = []
+    for r in sorted(new, key=order):
+        if key(r) not in seen:
+            seen.add(key(r))
+            added.append(r)
+    write(path, fields, rows + added)
+    for p in files:
+        p.unlink()
+    return rows + added

@@ -34,6 +34,7 @@ from typing import Callable
 
 import numpy as np
 
+from kx import processes
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, stats
@@ -147,7 +148,8 @@ def _record(out: pathlib.Path, runs: int, target_runs: dict, table3: pathlib.Pat
 
 def run(out: str | pathlib.Path, arms=tuple(ARMS), methods=METHODS, phases=("source", "target"), runs: int = 10,
         target_runs: dict | None = None, table3: str | pathlib.Path | None = None,
-        log: Callable[[str], None] = print, batch: int = 16, base: t3.Protocol = TABLE3) -> None:
+        log: Callable[[str], None] = print, batch: int = 16, base: t3.Protocol = TABLE3,
+        shard: processes.Shard = processes.ALONE) -> None:
     """Every run of the sweep not yet in its arm's results.csv: every arm's sources first (each method's in
     turn), then the transfers; each arm's diagnostics.csv updated after each of its calls. Resumable as
     :func:`kx.experiments.table3.run` is (the same command again)."""
@@ -170,14 +172,16 @@ def run(out: str | pathlib.Path, arms=tuple(ARMS), methods=METHODS, phases=("sou
     for arm, m, p in plan:  # every config checked before any compute
         for spec in specs(arm, m, p, runs, target_runs.get(m, 0)):
             t3.config(protocol(arm, base), spec, out / arm.name)
-    _record(out, runs, target_runs, table3, base)
+    if shard.leader:
+        _record(out, runs, target_runs, table3, base)
     for arm, m, p in plan:
         todo = specs(arm, m, p, runs, target_runs.get(m, 0))
         if not todo:
             continue
         log(f"kx novelty: {arm.name} ({arm.label}), {m} {p}s")
-        t3.run(out / arm.name, protocol(arm, base), todo, log=log, batch=batch)
-        update_diagnostics(out / arm.name, arm)
+        t3.run(out / arm.name, protocol(arm, base), todo, log=log, batch=batch, shard=shard)
+        if shard.leader:  # every process's runs are merged into results.csv by now
+            update_diagnostics(out / arm.name, arm)
 
 
 # ---------------------------------------------------------------------------------------------------- report

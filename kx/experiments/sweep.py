@@ -20,6 +20,7 @@ from typing import Callable
 
 import numpy as np
 
+from kx import processes
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
@@ -112,30 +113,46 @@ def read_results(path: pathlib.Path) -> list[dict]:
     return csvfile.read(path, FIELDS, "kx sweep results file")
 
 
-def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
+def _row_key(row: dict) -> tuple:
+    return (row["overrides"], int(row["seed"]))
+
+
+def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = print, batch: int = 16,
+        shard: processes.Shard = processes.ALONE) -> list[dict]:
     """Runs every (combination, seed) not yet in ``out/results.csv``, the seeds of each combination in
     batched groups of up to ``batch`` (:mod:`kx.evolve.group`; 1: one by one; each run's results are the
-    same either way, its ``wall_seconds`` its share of its group's); returns all rows."""
+    same either way, its ``wall_seconds`` its share of its group's); returns all rows. Under several
+    processes (``shard``, :mod:`kx.processes`) each trains the runs it owns (the i-th (combination, seed)
+    of the grid when i modulo the processes is its index) into its own process file, which the leader
+    merges into results.csv."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     combos = sweep.combinations()
     for c in combos:  # every config checked before any compute
         cfg_lib.validate(_config(sweep, c, sweep.seeds[0]))
-    out.mkdir(parents=True, exist_ok=True)
     spec_path = out / "sweep.json"
+    if shard.leader:
+        out.mkdir(parents=True, exist_ok=True)
+        csvfile.merge(out / "results.csv", FIELDS, "kx sweep results file", _row_key, _row_key)
+    shard.barrier("sweep start")
     if spec_path.is_file():
         have = json.loads(spec_path.read_text())
         if have != sweep.to_json():
             diff = [k for k in have if have[k] != sweep.to_json().get(k)]
             raise RunError(f"{out} holds another sweep (differs in {', '.join(diff)}): use another --out")
-    else:
+    elif shard.leader:
         run_outputs.write_json(spec_path, sweep.to_json())
+    shard.barrier("sweep sweep.json")
     rows = read_results(out / "results.csv")
+    own_path = out / "results.csv" if shard.count == 1 else csvfile.process_path(out / "results.csv", shard.index)
+    own = rows if shard.count == 1 else []
     done = {(r["overrides"], int(r["seed"])) for r in rows}
     name = names(combos)
     total = len(combos) * len(sweep.seeds)
-    todo = [(c, [s for s in sweep.seeds if (key(c), s) not in done]) for c in combos]
+    place = {(key(c), s): i for i, (c, s) in enumerate((c, s) for c in combos for s in sweep.seeds)}
+    todo = [(c, [s for s in sweep.seeds if (key(c), s) not in done and shard.owns(place[(key(c), s)])])
+            for c in combos]
     chunks = [(c, seeds[i:i + batch]) for c, seeds in todo for i in range(0, len(seeds), batch)]
     n_done = total - sum(len(seeds) for _, seeds in todo)
     log(f"kx sweep: {total} runs, {n_done} done, {total - n_done} to run -> {out}")
@@ -147,17 +164,26 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
         show = lambda s: log(f"{prefix} {' '.join(s.split()[:6])}") if s.startswith("gen ") else None  # noqa: E731
         measured = measure.train_and_measure(cfgs, dirs, sweep.test_seed, sweep.test_trials, log=show)
         for cfg, seed, finished in zip(cfgs, seeds, measured):
-            rows.append({"combination": name[c], "overrides": key(c), "seed": seed, "task": cfg.task,
-                         "method": cfg.method, "generations": cfg.generations,
-                         "episodes": cfg.generations * cfg.population_size * cfg.trials,
-                         "max_fitness": finished.max_fitness, "test_fitness": finished.test,
-                         "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
-                         "champion_generation": int(finished.state.champion_generation),
-                         "wall_seconds": finished.wall_seconds})
-            csvfile.write(out / "results.csv", FIELDS, rows)
+            row = {"combination": name[c], "overrides": key(c), "seed": seed, "task": cfg.task,
+                   "method": cfg.method, "generations": cfg.generations,
+                   "episodes": cfg.generations * cfg.population_size * cfg.trials,
+                   "max_fitness": finished.max_fitness, "test_fitness": finished.test,
+                   "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
+                   "champion_generation": int(finished.state.champion_generation),
+                   "wall_seconds": finished.wall_seconds}
+            if own is not rows:
+                own.append(row)
+            rows.append(row)
+            csvfile.write(own_path, FIELDS, own)
             n_done += 1
             log(f"[{n_done}/{total} runs | {' '.join(c)} seed {seed}] test {finished.test:.4f}, max fitness "
                 f"{finished.max_fitness:.4f}")
+    if shard.count > 1:
+        shard.barrier("sweep end")
+        if shard.leader:
+            csvfile.merge(out / "results.csv", FIELDS, "kx sweep results file", _row_key, _row_key)
+        shard.barrier("sweep merged")
+        rows = read_results(out / "results.csv")
     return rows
 
 

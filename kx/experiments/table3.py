@@ -41,6 +41,7 @@ from typing import Callable, Iterable
 
 import ml_collections
 
+from kx import processes
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
@@ -421,8 +422,20 @@ def missing_sources(out: pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     return out_specs
 
 
+def _order(row: dict) -> tuple:
+    """The order in which merged process files' rows join results.csv: the plan's (run by run, each method's
+    sources first)."""
+    return (int(row["run"]), METHODS.index(row["method"]), row["phase"] != "source", row["setup"],
+            TARGETS.index(row["target"]) if row["target"] in TARGETS else -1)
+
+
+def merge_results(out: pathlib.Path) -> list[dict]:
+    """results.csv with the process files of a run of several processes merged into it (kx.processes)."""
+    return csvfile.merge(out / "results.csv", FIELDS, "kx table3 results file", row_key, _order)
+
+
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
-        log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
+        log: Callable[[str], None] = print, batch: int = 16, shard: processes.Shard = processes.ALONE) -> list[dict]:
     """Runs every run of ``specs`` not yet in ``out/results.csv`` (a transfer run's source first, even if
     not selected), in batched groups of up to ``batch`` runs of one cell (1: one by one), each run resumed
     from its checkpoint if a previous protocol was killed during it; appends each finished run's row.
@@ -435,13 +448,21 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     any compute, every config is checked, the protocol.json is the same protocol with the same test states
     (:func:`kx.experiments.design.check_folder`), each such source's row is what its config gives now
     (:data:`PLANNED`), and a recorded source's finished run directory is the run of its row (its
-    metrics.csv curves: a re-run killed before its check is not taken as checked)."""
+    metrics.csv curves: a re-run killed before its check is not taken as checked).
+
+    Under several processes (``shard``: :mod:`kx.processes`) each trains the runs it owns (a run index modulo
+    the processes: a target and its source together) and writes their rows to its own process file; the
+    leader merges the files of a killed run at the start and everyone's at the end, and alone writes
+    protocol.json. The results are those of one process, bit for bit."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     for spec in specs:  # every config checked before any compute
         config(protocol, spec, out)
     results_path = out / "results.csv"
+    if shard.leader and results_path.parent.is_dir():
+        merge_results(out)  # the process files a run of several processes left when it was killed
+    shard.barrier("table3 start")
     rows = read_results(results_path)
     recorded = {row_key(r): r for r in rows}
     _same_protocol(out, protocol)
@@ -462,20 +483,32 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             raise RunError(f"{src.describe()}: its run directory {run_dir(out, src)} is not the run of its row in "
                            f"{results_path} ({'; '.join(diff)}): move it away to have it trained again and "
                            "checked; nothing was run")
-    created = _open(out, protocol)
-    design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log)
+    created = _open(out, protocol) if shard.leader else False
+    if shard.leader:
+        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log)
+    shard.barrier("table3 protocol.json")
+    if not shard.leader:
+        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), lambda s: None)
+    own_path = results_path if shard.count == 1 else csvfile.process_path(results_path, shard.index)
+    own = rows if shard.count == 1 else []
+    rebuild = [s for s in rebuild if shard.owns(s.run)]
     needed: list[RunSpec] = []
     for spec in specs:
         src = source_of(spec)
         for s in ((src,) if src is not None else ()) + (spec,):
-            if s.key not in recorded and s not in needed:
+            if s.key not in recorded and s not in needed and shard.owns(s.run):
                 needed.append(s)
     total = len({s.key for s in specs} | {s.key for s in needed})
     again, chunks = groups(rebuild, batch), groups(needed, batch)
     progress = _Progress(log, again + chunks, total - len(needed), total, rows)
     grouped = f" in {len(chunks)} groups of up to {batch}" if batch > 1 and chunks else ""
     redo = f"; {len(rebuild)} finished sources without a run directory trained again first" if rebuild else ""
-    log(f"kx table3: {total} runs, {total - len(needed)} done, {len(needed)} to run{grouped}{redo} -> {out}")
+    done = sum(1 for k in {s.key for s in specs} | {s.key for s in needed} if k in recorded)
+    mine = ""
+    if shard.count > 1:
+        mine = (f"; {total - done - len(needed)} by the other processes ({shard.describe()} runs the runs of index "
+                f"{shard.index} mod {shard.count})")
+    log(f"kx table3: {total} runs, {done} done, {len(needed)} to run{grouped}{redo}{mine} -> {out}")
     for chunk in again + chunks:
         reproduce = chunk[0] in rebuild
         cfgs = [config(protocol, spec, out) for spec in chunk]
@@ -498,9 +531,11 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                     log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced "
                         "(every column but the times)")
                 continue
+            if own is not rows:
+                own.append(row)
             rows.append(row)
             progress.add(row)
-            csvfile.write(results_path, FIELDS, rows)
+            csvfile.write(own_path, FIELDS, own)
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
                 f"{row['test_fitness']:.4f}")
             progress.done += 1
@@ -510,5 +545,11 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                            "run (the code or the machine gives other results than those recorded: run the "
                            "folder's targets where it was made, or the whole protocol again in a new folder)")
         progress.finish(0)
+    if shard.count > 1:
+        shard.barrier("table3 end")  # every process's runs finished: the leader merges their files
+        if shard.leader:
+            merge_results(out)
+        shard.barrier("table3 merged")
+        rows = read_results(results_path)
     want = {s.key for s in specs}
     return [r for r in rows if row_key(r) in want]

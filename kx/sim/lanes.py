@@ -178,8 +178,8 @@ PER_DEVICE = jax.sharding.PartitionSpec("lanes", None)
 
 
 def mesh(n_dev: int) -> jax.sharding.Mesh:
-    """The first ``n_dev`` devices, the lanes split over them."""
-    return jax.sharding.Mesh(np.array(jax.devices()[:n_dev]), ("lanes",))
+    """The first ``n_dev`` devices of this process, the lanes split over them."""
+    return jax.sharding.Mesh(np.array(jax.local_devices()[:n_dev]), ("lanes",))
 
 
 def lane_specs(tree):
@@ -210,7 +210,7 @@ def onto_mesh(tree, n_dev: int):
     checkpoint's, say) copied onto them, replicated, so that one compiled call can take them all."""
     if n_dev == 1:
         return tree
-    devices = set(jax.devices()[:n_dev])
+    devices = set(jax.local_devices()[:n_dev])
     rep = jax.sharding.NamedSharding(mesh(n_dev), REPLICATED)
     return jax.tree.map(lambda a: jax.device_put(a, rep) if isinstance(a, jax.Array) and a.committed
                         and a.sharding.device_set != devices else a, tree)
