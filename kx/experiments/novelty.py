@@ -158,8 +158,8 @@ def run(out: str | pathlib.Path, arms=tuple(ARMS), methods=METHODS, phases=("sou
     bad = [a for a in arms if a not in ARMS]
     if bad or not arms:
         raise ValueError(f"--arms: allowed {', '.join(ARMS)} (one or more), got {', '.join(arms) or 'nothing'}")
-    t3._check_choice("--methods", methods, METHODS)
-    t3._check_choice("--phases", phases, ("source", "target"))
+    t3.check_choice("--methods", methods, METHODS)
+    t3.check_choice("--phases", phases, ("source", "target"))
     if not isinstance(runs, int) or runs < 1:
         raise ValueError(f"--runs: allowed an integer >= 1, got {runs!r}")
     for m, n in target_runs.items():

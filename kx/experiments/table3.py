@@ -130,7 +130,7 @@ def run_seed(protocol_seed: int, method: str, setup: str, phase: str, target: st
     return int.from_bytes(hashlib.blake2b(text, digest_size=8).digest(), "little") % (2**31 - 1)
 
 
-def _check_choice(field: str, got: Iterable[str], allowed: Iterable[str]) -> tuple[str, ...]:
+def check_choice(field: str, got: Iterable[str], allowed: Iterable[str]) -> tuple[str, ...]:
     got, allowed = tuple(got), tuple(allowed)
     bad = [g for g in got if g not in allowed]
     if bad or not got:
@@ -141,9 +141,9 @@ def _check_choice(field: str, got: Iterable[str], allowed: Iterable[str]) -> tup
 def plan(methods=METHODS, targets=TARGETS, setups=tuple(SETUPS), runs: int = 20) -> list[RunSpec]:
     """The runs of the selected part of the protocol, in the order they run: run index by run index
     (so that every cell grows together), per method its sources first, then its target runs."""
-    methods = _check_choice("--methods", methods, METHODS)
-    targets = _check_choice("--targets", targets, TARGETS)
-    setups = _check_choice("--setups", setups, SETUPS)
+    methods = check_choice("--methods", methods, METHODS)
+    targets = check_choice("--targets", targets, TARGETS)
+    setups = check_choice("--setups", setups, SETUPS)
     if not isinstance(runs, int) or runs < 1:
         raise ValueError(f"--runs: allowed an integer >= 1, got {runs!r}")
     out = []
