@@ -30,6 +30,8 @@ baseline is measured in the same run (these machines are shared and noisy).
 * ``policies``: the cost per live step of the heuristic's whole step, NEAT's and HyperNEAT's on trained 4v3
   populations (committed fixtures, ``scripts/make_policy_fixtures.py``), each a ratio to the heuristic's
   measured in the same run, and each decision alone.
+* ``protocol``: a fixed small slice of the Table 3 protocol run by one process and by several
+  (``--processes 1 2``; kx.processes): runs per hour for each, the same results checked.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """
@@ -39,13 +41,26 @@ from __future__ import annotations
 import argparse
 
 from kx import runtime
-from kx.bench import generation, hyperneat, learning, neat_generation, neat_xor, novelty, policies, runs, sim, transfer
+from kx.bench import (
+    generation,
+    hyperneat,
+    learning,
+    neat_generation,
+    neat_xor,
+    novelty,
+    policies,
+    protocol,
+    runs,
+    sim,
+    transfer,
+)
 
 # Each benchmark is a module whose run(args) prints its figures; they import JAX inside run, after
 # kx.runtime.setup() has set up the devices.
 BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
            "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
-           "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run, "policies": policies.run}
+           "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run, "policies": policies.run,
+           "protocol": protocol.run}
 
 
 def main(argv=None) -> None:
@@ -76,6 +91,10 @@ def main(argv=None) -> None:
                         "needs NEAT and CMA-ES)")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation, hyperneat: first generations left out (they compile)")
+    p.add_argument("--processes", type=int, nargs="+", default=[1, 2],
+                   help="protocol: the process counts to compare (default 1 2)")
+    p.add_argument("--protocol-runs", type=int, default=4, help="protocol: runs a cell of the slice")
+    p.add_argument("--protocol-generations", type=int, default=5, help="protocol: generations a run of the slice")
     args = p.parse_args(argv)
     if args.seeds is None:
         args.seeds = 5 if args.name == "transfer" else 10
