@@ -352,6 +352,51 @@ def answers(cells: dict) -> list[str]:
 
 
 
+def _arm_mean(diag: dict, arm: str, method: str, field: str) -> float | None:
+    v = [d[field] for d in diag["summary"].get((arm, method, "source"), {}).values() if d[field] is not None]
+    return float(np.mean(v)) if v else None
+
+
+def diagnosis(cells: dict, diag: dict) -> list[str]:
+    """What the sources' diagnostics say, per method, as sentences built from the figures."""
+    lines = []
+    for m in METHODS:
+        if _arm_mean(diag, REFERENCE, m, "spread") is None:
+            continue
+        name = METHOD_NAMES[m]
+        ref = {f: _arm_mean(diag, REFERENCE, m, f) for f in ("spread", "childless", "children")}
+        hybrid = [a for a in ARMS if a not in (REFERENCE, "rho-1.0") and _arm_mean(diag, a, m, "spread") is not None]
+        if hybrid:
+            spreads = [_arm_mean(diag, a, m, "spread") for a in hybrid]
+            lines.append(f"- {name}, behaviour spread: {ref['spread']:.3f} under fitness alone, {min(spreads):.3f} to "
+                         f"{max(spreads):.3f} under the hybrid's readings with a novelty term ({len(hybrid)} arms): "
+                         f"at most {100 * (max(spreads) / ref['spread'] - 1):+.0f}% (means over generations and "
+                         "runs).")
+        parts = []
+        for a in ("rho-0.6", "rho-0.4", "rho-0.0"):
+            c, k = _arm_mean(diag, a, m, "childless"), _arm_mean(diag, a, m, "children")
+            if c is not None:
+                parts.append(f"{100 * c:.0f}% and {k:.1f} at rho {a[4:]}")
+        if parts:
+            lines.append(f"- {name}, the generation's fittest genome: childless in {100 * ref['childless']:.0f}% of "
+                         f"generations under fitness alone, with {ref['children']:.1f} children on average; "
+                         + "; ".join(parts) + ".")
+        one, fit = cells.get(("rho-1.0", m, "source"), []), cells.get((REFERENCE, m, "source"), [])
+        if len(one) >= 2 and len(fit) >= 2:
+            pieces = []
+            for measure, what in MEASURES:
+                c = stats.mann_whitney(_values(one, measure), _values(fit, measure))
+                pieces.append(f"{what} IQM {stats.iqm(_values(one, measure)):.3f} against "
+                              f"{stats.iqm(_values(fit, measure)):.3f} (A {c.a:.2f}, p {c.p:.3f})")
+            lines.append(f"- {name}, the hybrid's score with no novelty in it (rho 1.0: min-max-normalised fitness) "
+                         "against raw fitness: " + "; ".join(pieces) + ". A monotone rescaling leaves each "
+                         "species' ranking of its members, its elite and its parents as they were; what it "
+                         "changes is the species' shares of the offspring (explicit fitness sharing: a species' "
+                         "mean score), which on the min-max scale are shares of each genome's fitness above the "
+                         "generation's worst rather than of its fitness.")
+    return lines
+
+
 def _plots(cells: dict, diag: dict, out: pathlib.Path) -> list[str]:
     import matplotlib
 
@@ -425,6 +470,9 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
           "next generation's children it is a parent of on average; *final archive*, the novelty archive's size "
           "after the last generation.", "", "## The answers", ""]
     md += answers(cells) + [""]
+    found = diagnosis(cells, diag)
+    if found:
+        md += ["### What the diagnostics say (sources)", ""] + found + [""]
     for phase, title in (("source", f"Sources: 3v2, {base['source_generations']} generations"),
                          ("target", f"After transfer: fitness + NS transfer to 4v3, {base['target_generations']} "
                                     "generations")):
