@@ -111,6 +111,9 @@ def test_the_report_is_the_hand_computed_comparison_and_regenerates_byte_for_byt
     # the transfer table takes the fitness arm's 4v3 runs from Table 3's folder, those below the sweep's 6 runs
     assert "| `fitness` fitness alone | 6 |" in text.split("## After transfer")[1]
     assert "Not yet: the sweep has no HyperNEAT pure-novelty transfers" in text
+    assert "- NEAT, behaviour spread: 0.150 under fitness alone, 0.150 to 0.150 under the hybrid's readings" in text
+    assert ("childless in 0% of generations under fitness alone, with 3.0 children on average; "
+            f"25% and {9 / 4:.1f} at rho 0.0.") in text
     novelty.write_report(out)
     assert {p.name: p.read_bytes() for p in out.iterdir() if p.suffix in (".md", ".png")} == files
 
