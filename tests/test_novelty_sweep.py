@@ -153,4 +153,4 @@ def test_a_tiny_sweep_reproduces_table3s_sources_and_reports(tmp_path):
     assert "- NEAT `fitness`: 2 of 2 sources equal Table 3's rows" in text
     assert "- NEAT `rho-0.4`: 2 of 2 sources equal Table 3's rows" in text
     with pytest.raises(t3.RunError, match="base protocol"):
-        novelty.run(out, ("fitness",), ("neat",), runs=2, table3=table3, log=lambda s: None)
+        novelty.run(out, ("fitness",), ("neat",), runs=2, target_runs={"neat": 2}, table3=table3, log=lambda s: None)
