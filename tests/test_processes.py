@@ -127,3 +127,21 @@ def test_process_files_merge_once_in_the_plans_order(tmp_path):
     assert not list(tmp_path.glob("results.process*.csv"))
     assert t3.read_results(path) == merged
     assert t3.merge_results(tmp_path) == merged  # nothing left to merge: unchanged
+
+
+@pytest.mark.slow  # ~60 s
+def test_a_sweep_under_two_processes_gives_the_one_process_results(tmp_path):
+    args = ["sweep", "--config", "configs/neat_3v2.py", "--grid", "trials=2,3", "--seeds", "0-2", "--test-trials", "4",
+            "--set", "population_size=12", "--set", "validation_trials=4", "--set", "sim.max_iterations=60",
+            "--set", "generations=2"]
+    one, two = tmp_path / "one", tmp_path / "two"
+    for out, extra in ((one, []), (two, ["--processes", "2"])):
+        res = _run([*args, *extra, "--out", str(out)])
+        assert res.returncode == 0, (res.stdout + res.stderr)[-3000:]
+
+    def rows(out):
+        with (out / "results.csv").open() as f:
+            return sorted(tuple((k, v) for k, v in r.items() if k != "wall_seconds") for r in csv.DictReader(f))
+
+    assert len(rows(one)) == 6 and rows(one) == rows(two)
+    assert not list(two.glob("results.process*.csv"))
