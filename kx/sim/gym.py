@@ -1,0 +1,119 @@
+"""Keep-away as a gymnax-style environment: one episode, functional, vmapped at the call site.
+
+    env = KeepAway(KeepAwayConfig(n_keepers=4, n_takers=3))   # any task (4v3 here)
+    params = env.default_params
+    obs, state = env.reset(key, params)            # obs [13]
+    obs, state, reward, done, info = env.step(key, state, action, params)
+
+The agent is the keeper with the ball, as in RoboCup keep-away, where only the holder's choice is
+learned: its actions are those of NEAT's fixed layout, ``0`` hold, ``1`` pass to the nearest teammate,
+``2`` to the second nearest (:func:`kx.sim.observe.decode_ranked`'s order); the other keepers and the
+takers follow the world's own behaviours. A step is an SMDP step (Stone, Sutton and Kuhlmann 2005): the
+holder's decision, then the world's iterations until the next decision (a keeper holds the ball again)
+or the episode's end, its reward the share of the episode's ``max_iterations`` survived in between, so
+that an episode's return is its fitness (:func:`kx.sim.env.episode_stats`). The observation is the
+fixed layout's 13 inputs in every task (:func:`kx.sim.observe.fixed_obs`).
+
+The rules are the simulator's (:func:`kx.sim.env.transition`), and so is the kick noise: a hash of the
+episode's noise word, drawn at reset, and the iteration (:func:`kx.sim.env.kick_noise`), as the evaluator
+plays it; ``step``'s key is not read (an episode is the same however its steps are batched). ``step``
+starts a new episode once one ends (gymnax's convention, with ``reset``'s key); ``step_env`` leaves a
+finished episode as it is.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from kx.sim import env, observe
+from kx.sim.types import KeepAwayConfig, KeepAwayParams, Reason, State
+
+N_ACTIONS = 3  # hold, pass to the nearest teammate, to the second nearest (the fixed layout's outputs)
+
+
+@struct.dataclass
+class EnvState:
+    world: State
+    noise_word: jax.Array  # uint32: the episode's kick noise (kx.sim.env.kick_noise)
+
+
+class KeepAway:
+    """The keep-away world of one task (``config``) as a gymnax-style environment."""
+
+    def __init__(self, config: KeepAwayConfig):
+        self.config = config  # at least 3 keepers (KeepAwayConfig's own check): every action has its keeper
+
+    @property
+    def default_params(self) -> KeepAwayParams:
+        return KeepAwayParams()
+
+    @property
+    def num_actions(self) -> int:
+        return N_ACTIONS
+
+    @property
+    def observation_size(self) -> int:
+        return observe.n_inputs("fixed", self.config)
+
+    def observation(self, state: EnvState) -> jax.Array:
+        return observe.fixed_obs(state.world, self.config)
+
+    def reset(self, key: jax.Array, params: KeepAwayParams) -> tuple[jax.Array, EnvState]:
+        k_start, k_noise = jax.random.split(key)
+        world = env.reset(k_start, params, self.config)
+        state = EnvState(world=world, noise_word=jax.random.bits(k_noise, (), jnp.uint32))
+        return self.observation(state), state
+
+    def keeper_of(self, state: EnvState, action: jax.Array) -> jax.Array:
+        """The keeper an action sends the ball to (the holder's own index: hold)."""
+        order = observe.teammate_order(state.world, self.config)
+        return order[jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32)]
+
+    def step_env(self, key: jax.Array, state: EnvState, action: jax.Array,
+                 params: KeepAwayParams) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
+        """The holder's decision ``action``, then the world until the next decision or the end."""
+        del key  # the kick noise is the episode's (its noise word and the iteration)
+        s_max = env.noise_limit(params.kick_noise_deg)
+        word = state.noise_word
+
+        def iterate(world, keeper):
+            return env.transition(world, keeper, env.kick_noise(word, world.t, s_max), params, self.config)
+
+        world = iterate(state.world, self.keeper_of(state, action))
+        world = jax.lax.while_loop(lambda w: (w.holder < 0) & ~w.done,
+                                   lambda w: iterate(w, jnp.full_like(w.holder, -1)), world)
+        reward = survived(world, params) - survived(state.world, params)
+        nxt = state.replace(world=world)
+        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
+        return self.observation(nxt), nxt, reward, world.done, info
+
+    def step(self, key: jax.Array, state: EnvState, action: jax.Array,
+             params: KeepAwayParams) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
+        """:meth:`step_env`, and a new episode (``reset(key)``) in place of a finished one."""
+        obs, nxt, reward, done, info = self.step_env(key, state, action, params)
+        obs_reset, state_reset = self.reset(key, params)
+        pick = lambda a, b: jax.lax.select(done, a, b)  # noqa: E731
+        return (jax.tree.map(pick, obs_reset, obs), jax.tree.map(pick, state_reset, nxt), reward, done, info)
+
+
+def survived(world: State, params: KeepAwayParams) -> jax.Array:
+    """The share of ``max_iterations`` the episode has survived so far (its fitness once finished)."""
+    lost = (world.reason == Reason.INTERCEPTED) | (world.reason == Reason.TACKLED) | (
+        world.reason == Reason.OUT_OF_FIELD)
+    return (world.t - lost.astype(jnp.int32)).astype(jnp.float32) / jnp.asarray(params.max_iterations, jnp.float32)
+
+
+def rollout_return(env_: KeepAway, params: KeepAwayParams, state: EnvState, act: Any, max_steps: int) -> jax.Array:
+    """The return of one episode from ``state``, ``act(obs) -> action`` deciding (greedy policies, tests)."""
+    def body(carry, _):
+        s, total = carry
+        obs = env_.observation(s)
+        _, s2, r, _, _ = env_.step_env(jax.random.key(0), s, act(obs), params)
+        return (s2, total + r), None
+
+    (_, total), _ = jax.lax.scan(body, (state, jnp.float32(0.0)), None, length=max_steps)
+    return total

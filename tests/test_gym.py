@@ -1,0 +1,126 @@
+"""Keep-away as a gymnax-style environment (kx.sim.gym): the world's own rules and kick noise, SMDP steps
+from one decision of the holder to the next, an episode's return equal to its fitness, jit and vmap."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from kx.sim import env, gym, observe
+from kx.sim import evaluate as ev
+from kx.sim.policies import heuristic
+from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+CFG = KeepAwayConfig()  # 3v2
+PARAMS = KeepAwayParams(kick_noise_deg=10.0)
+ENV = gym.KeepAway(CFG)
+
+
+def _same(a, b):
+    for f in a.__dataclass_fields__:
+        np.testing.assert_array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f)), err_msg=f)
+
+
+def test_an_smdp_step_is_the_worlds_iterations_from_one_decision_to_the_next():
+    key = jax.random.key(3)
+    obs, state = ENV.reset(key, PARAMS)
+    assert obs.shape == (ENV.observation_size,) == (13,)
+    np.testing.assert_array_equal(obs, observe.fixed_obs(state.world, CFG))
+    step = jax.jit(ENV.step_env)
+    s_max = env.noise_limit(PARAMS.kick_noise_deg)
+    world = state.world
+    rng = np.random.default_rng(0)
+    passes_seen, total = 0, 0.0
+    iterate = jax.jit(lambda w, keeper, word: env.transition(w, keeper, env.kick_noise(word, w.t, s_max), PARAMS, CFG))
+    order = jax.jit(lambda w: observe.teammate_order(w, CFG))
+    for i in range(60):
+        action = int(rng.integers(0, gym.N_ACTIONS))
+        # the world by hand: the decision, then iterations with no decision while the ball flies
+        keeper = order(world)[action]
+        t0 = int(world.t)
+        world = iterate(world, keeper, state.noise_word)
+        while int(world.holder) < 0 and not bool(world.done):
+            world = iterate(world, jnp.int32(-1), state.noise_word)
+        before = state
+        obs, state, reward, done, info = step(jax.random.key(i), state, jnp.int32(action), PARAMS)
+        _same(state.world, world)
+        assert int(info["iterations"]) == int(world.t) - t0 >= (0 if bool(before.world.done) else 1)
+        assert bool(done) == bool(world.done)
+        assert bool(done) or int(world.holder) >= 0  # a step ends at a decision, or at the episode's end
+        lost = int(world.reason) in (1, 2, 3) and not bool(before.world.done)  # the losing iteration
+        # does not count
+        assert float(reward) * PARAMS.max_iterations == pytest.approx(int(world.t) - t0 - lost, abs=1e-3)
+        passes_seen += int(info["iterations"]) > 1
+        total += float(reward)
+        if bool(done):
+            # the return is the episode's fitness
+            assert total == pytest.approx(float(env.episode_stats(world, PARAMS, CFG).fitness), abs=2e-6)
+            _, after, reward_after, _, _ = step(jax.random.key(99), state, jnp.int32(0), PARAMS)
+            _same(after.world, state.world)  # step_env leaves a finished episode as it is
+            assert float(reward_after) == 0.0
+            break
+    assert bool(done) and passes_seen > 0  # random decisions lose the ball within 60 steps; some steps spanned a flight
+
+
+def _heuristic_action(state):
+    """The heuristic's keeper as an action of the ranked order (3v2: every keeper is in it)."""
+    keeper = heuristic(CFG).apply(None, state.world, None)
+    order = observe.teammate_order(state.world, CFG)
+    return jnp.argmax(order == keeper).astype(jnp.int32)
+
+
+@pytest.mark.slow  # ~30 s: whole episodes of the heuristic, through the evaluator and through the environment
+def test_an_episodes_return_is_the_evaluators_fitness_for_the_same_decisions():
+    trials = 6
+    key = jax.random.key(11)
+    starts = env.reset_batch(jax.random.key(5), trials, PARAMS, CFG)
+    stats = ev.evaluate(heuristic(CFG), None, starts, PARAMS, CFG, key=key)
+    words = env.noise_words(ev.stream_keys(key)[0], jnp.arange(trials))
+
+    @jax.jit
+    @jax.vmap
+    def episode(start, word):
+        def body(carry):
+            s, total = carry
+            _, s2, r, _, _ = ENV.step_env(jax.random.key(0), s, _heuristic_action(s), PARAMS)
+            return s2, total + r
+
+        final, total = jax.lax.while_loop(lambda c: ~c[0].world.done, body,
+                                          (gym.EnvState(world=start, noise_word=word), jnp.float32(0.0)))
+        return final.world, total
+
+    finals, totals = episode(jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), starts), words)
+    for i in range(trials):
+        final = jax.tree.map(lambda a: a[i], finals)
+        assert bool(final.done)
+        assert int(final.t) == int(stats.iterations[0, i]) and int(final.reason) == int(stats.reason[0, i])
+        assert int(final.passes) == int(stats.passes[0, i])
+        assert float(totals[i]) == pytest.approx(float(stats.fitness[0, i]), abs=2e-6)
+        assert float(gym.survived(final, PARAMS)) == float(stats.fitness[0, i])
+
+
+def test_reset_and_step_vmap_over_episodes_as_one_by_one_and_step_starts_a_new_episode():
+    keys = jax.random.split(jax.random.key(7), 8)
+    _, states = jax.vmap(ENV.reset, in_axes=(0, None))(keys, PARAMS)
+    actions = jnp.arange(8, dtype=jnp.int32) % gym.N_ACTIONS
+    step = jax.jit(jax.vmap(ENV.step, in_axes=(0, 0, 0, None)))
+    one_step = jax.jit(ENV.step)
+    for _ in range(5):
+        o2, s2, r, d, _ = step(keys, states, actions, PARAMS)
+        for i in range(8):
+            one = jax.tree.map(lambda a: a[i], states)
+            oi, si, ri, di, _ = one_step(keys[i], one, actions[i], PARAMS)  # one episode
+            np.testing.assert_allclose(o2[i], oi, rtol=1e-6)  # float features: batched they may round apart
+            # in the last bit; the world's integer state is exact
+            _same(jax.tree.map(lambda a: a[i], s2).world, si.world)
+            assert float(r[i]) == float(ri) and bool(d[i]) == bool(di)
+        states = s2
+    # a finished episode is replaced by reset(key)'s
+    short = KeepAwayParams(kick_noise_deg=10.0, max_iterations=3)
+    _, s = ENV.reset(keys[0], short)
+    for _ in range(3):
+        _, s, _, done, _ = one_step(keys[1], s, jnp.int32(0), short)
+        if bool(done):
+            break
+    assert bool(done)
+    _same(s.world, ENV.reset(keys[1], short)[1].world)
