@@ -67,6 +67,7 @@ def one_process(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # ~60 s: three processes start (the default suite keeps the refusal and the merge)
 def test_two_local_processes_give_the_one_process_results(one_process, tmp_path):
     out = tmp_path / "t3"
     res = _run([*TINY, "--processes", "2", "--out", str(out)])
