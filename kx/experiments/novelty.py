@@ -37,7 +37,7 @@ import numpy as np
 from kx import processes
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, stats
+from kx.experiments import csvfile, design, report, stats
 from kx.experiments import table3 as t3
 
 
@@ -186,8 +186,8 @@ def run(out: str | pathlib.Path, arms=tuple(ARMS), methods=METHODS, phases=("sou
 
 # ---------------------------------------------------------------------------------------------------- report
 
-METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT"}
-ALPHA = 0.05
+METHOD_NAMES = report.METHOD_NAMES
+ALPHA = design.ALPHA  # Table 3's significance level
 MEASURES = (("test_fitness", "validated champion on the test states"), ("max_fitness", "maximum training fitness"))
 
 
@@ -487,6 +487,6 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
     for name in _plots(cells, diag, out):
         md += [f"![{name}]({name})", ""]
     md += ["## Checks", ""] + (_reproduced(out, rec) or ["- No source of the Table 3 arms has run yet."]) + [""]
-    report = out / "report.md"
-    run_outputs.write_text(report, "\n".join(md))
-    return report
+    md_path = out / "report.md"
+    run_outputs.write_text(md_path, "\n".join(md))
+    return md_path

@@ -23,8 +23,6 @@ finished episode as it is.
 
 from __future__ import annotations
 
-from typing import Any
-
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -105,15 +103,3 @@ def survived(world: State, params: KeepAwayParams) -> jax.Array:
     lost = (world.reason == Reason.INTERCEPTED) | (world.reason == Reason.TACKLED) | (
         world.reason == Reason.OUT_OF_FIELD)
     return (world.t - lost.astype(jnp.int32)).astype(jnp.float32) / jnp.asarray(params.max_iterations, jnp.float32)
-
-
-def rollout_return(env_: KeepAway, params: KeepAwayParams, state: EnvState, act: Any, max_steps: int) -> jax.Array:
-    """The return of one episode from ``state``, ``act(obs) -> action`` deciding (greedy policies, tests)."""
-    def body(carry, _):
-        s, total = carry
-        obs = env_.observation(s)
-        _, s2, r, _, _ = env_.step_env(jax.random.key(0), s, act(obs), params)
-        return (s2, total + r), None
-
-    (_, total), _ = jax.lax.scan(body, (state, jnp.float32(0.0)), None, length=max_steps)
-    return total
