@@ -8,20 +8,22 @@ surrogate with generalised advantage estimation (Schulman et al. 2017; GAE: Schu
 SMDP steps, a step from one decision of the holder to the next (its reward the share of the episode
 survived in between). Evaluated greedily (the argmax of the logits), as NEAT's networks decide.
 
-This module is the learner alone: it is not yet a method of ``python -m kx.train`` (issue 34).
+:func:`make_train` is the whole training as one program of a key (``cfg.updates`` updates); the run loop's
+method ``ppo`` (:mod:`kx.evolve.encodings.ppo`) trains in blocks of episodes instead (:func:`make_block`),
+its :class:`Learner` checkpointed between them. Both step the environment's batched functions
+(:meth:`kx.sim.gym.KeepAway.step_batch`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from flax.training.train_state import TrainState
 
 from kx.sim import gym
 from kx.sim.types import KeepAwayParams
@@ -43,6 +45,7 @@ class PPOConfig:
     lr: float = 2.5e-4
     anneal_lr: bool = True
     hidden: int = 64
+    resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100, 100
     # updates: 0.33 on 200 test starts, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0)
@@ -51,11 +54,14 @@ class PPOConfig:
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(f"num_minibatches: must divide num_envs x num_steps ({self.num_envs * self.num_steps}), "
                              f"got {self.num_minibatches}")
+        if not 1 <= self.resets <= self.num_envs:
+            raise ValueError(f"resets: allowed an integer in [1, num_envs = {self.num_envs}], got {self.resets}")
 
 
 class ActorCritic(nn.Module):
     n_actions: int = gym.N_ACTIONS
     hidden: int = 64
+    resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
 
     @nn.compact
     def __call__(self, obs):
@@ -107,65 +113,157 @@ def loss(params, apply_fn, batch: Transition, advantages, targets, clip_eps: flo
     return policy_loss + vf_coef * value_loss - ent_coef * entropy, (policy_loss, value_loss, entropy)
 
 
-def make_train(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
-    """``train(key) -> (train_state, metrics)``: ``cfg.updates`` PPO updates; jit it, vmap it over keys."""
-    net = ActorCritic(hidden=cfg.hidden)
-    n_batch = cfg.num_envs * cfg.num_steps
-    steps_per_update = cfg.update_epochs * cfg.num_minibatches
+class Learner(NamedTuple):
+    """PPO's whole state between two updates (a pytree of arrays: the run loop checkpoints it whole)."""
 
-    def schedule(count):
-        return cfg.lr * (1.0 - (count // steps_per_update) / cfg.updates) if cfg.anneal_lr else cfg.lr
+    params: Any  # the actor-critic's flax parameters
+    opt_state: Any  # optax's state of the gradient clipping and Adam's moments
+    env: gym.BatchState  # the num_envs episodes being played, batch-last
+    obs: jax.Array  # [num_envs, 13] their observations
+    returns: jax.Array  # [num_envs] each episode's return so far
+    updates: jax.Array  # int32: updates done
+    decisions: jax.Array  # int32: SMDP steps played
+    episodes: jax.Array  # int32: episodes ended
+    blocks: jax.Array  # int32: blocks of episodes done (kx.train's generations)
+
+
+def optimiser(cfg: PPOConfig) -> optax.GradientTransformation:
+    """Gradient clipping, then Adam's scaling; the learning rate is applied by :func:`make_update` (so that
+    it can follow the run's progress in episodes as well as in updates)."""
+    return optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.scale_by_adam(eps=1e-5))
+
+
+def init(key: jax.Array, cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, params=None) -> Learner:
+    """A fresh learner: the network's initial weights (or ``params``, e.g. a transfer source's), a fresh
+    optimiser, ``num_envs`` new episodes."""
+    k_init, k_reset = jax.random.split(key)
+    if params is None:
+        params = ActorCritic(hidden=cfg.hidden).init(k_init, jnp.zeros((env.observation_size,)))
+    obs, env_state = env.reset_batch(k_reset, cfg.num_envs, env_params)
+    zero = jnp.zeros((), jnp.int32)
+    return Learner(params=params, opt_state=optimiser(cfg).init(params), env=env_state, obs=obs,
+                   returns=jnp.zeros((cfg.num_envs,), jnp.float32), updates=zero, decisions=zero, episodes=zero,
+                   blocks=zero)
+
+
+#: the metrics of one update (:func:`make_update`), summed over a block's updates by :func:`make_block`
+UPDATE_METRICS = ("policy_loss", "value_loss", "entropy", "return_sum", "episodes", "shared_starts")
+
+
+def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+    """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps of the
+    ``num_envs`` episodes with the sampled policy, then ``update_epochs`` passes of PPO's clipped loss over
+    it in ``num_minibatches`` shuffled minibatches, at learning rate ``lr``."""
+    net = ActorCritic(hidden=cfg.hidden)
+    tx = optimiser(cfg)
+    n_batch = cfg.num_envs * cfg.num_steps
+
+    def env_step(carry, key):
+        learner, ended, return_sum, shared = carry
+        k_act, k_env = jax.random.split(key)
+        logits, value = net.apply(learner.params, learner.obs)
+        action = jax.random.categorical(k_act, logits)
+        log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
+        obs2, env_state, reward, done, info = env.step_batch(k_env, learner.env, action, env_params, cfg.resets)
+        returns = learner.returns + reward
+        nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
+        carry = (nxt, ended + done.sum(dtype=jnp.int32), return_sum + jnp.where(done, returns, 0.0).sum(),
+                 shared + info["shared_starts"].astype(jnp.int32))
+        return carry, Transition(learner.obs, action, log_prob, value, reward, done)
+
+    def rollout(learner, key):
+        zero = jnp.zeros((), jnp.int32)
+        return jax.lax.scan(env_step, (learner, zero, jnp.zeros((), jnp.float32), zero),
+                            jax.random.split(key, cfg.num_steps))
+
+    def update(learner: Learner, key: jax.Array, lr: jax.Array):
+        k_roll, k_epochs = jax.random.split(key)
+        (learner, ended, return_sum, shared), traj = rollout(learner, k_roll)
+        _, last_value = net.apply(learner.params, learner.obs)
+        adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
+                           cfg.gae_lambda)
+
+        def epoch(carry, k):
+            params, opt_state = carry
+            perm = jax.random.permutation(k, n_batch)
+            flat = jax.tree.map(lambda a: a.reshape((n_batch,) + a.shape[2:])[perm], (traj, adv, targets))
+            mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:]), flat)
+
+            def minibatch(carry, b):
+                params, opt_state = carry
+                t, a, tg = b
+                grads, aux = jax.grad(loss, has_aux=True)(params, net.apply, t, a, tg, cfg.clip_eps, cfg.vf_coef,
+                                                          cfg.ent_coef)
+                step, opt_state = tx.update(grads, opt_state, params)
+                params = jax.tree.map(lambda p, u: p - lr * u, params, step)
+                return (params, opt_state), aux
+
+            return jax.lax.scan(minibatch, (params, opt_state), mb)
+
+        (params, opt_state), aux = jax.lax.scan(epoch, (learner.params, learner.opt_state),
+                                                jax.random.split(k_epochs, cfg.update_epochs))
+        learner = learner._replace(params=params, opt_state=opt_state, updates=learner.updates + 1,
+                                   decisions=learner.decisions + n_batch, episodes=learner.episodes + ended)
+        metrics = {"policy_loss": aux[0].mean(), "value_loss": aux[1].mean(), "entropy": aux[2].mean(),
+                   "return_sum": return_sum, "episodes": ended, "shared_starts": shared}
+        return learner, metrics
+
+    return update
+
+
+def learning_rate(cfg: PPOConfig, progress) -> jax.Array:
+    """The learning rate at ``progress`` (the share of the training done, in [0, 1])."""
+    progress = jnp.clip(jnp.asarray(progress, jnp.float32), 0.0, 1.0)
+    return jnp.float32(cfg.lr) * (1.0 - progress) if cfg.anneal_lr else jnp.float32(cfg.lr)
+
+
+def make_train(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+    """``train(key) -> (learner, metrics)``: ``cfg.updates`` PPO updates from a fresh learner, the learning
+    rate annealed over them; one program of a key: jit it, vmap it over keys (seeds)."""
+    update = make_update(cfg, env, env_params)
 
     def train(key):
-        k_init, k_reset, key = jax.random.split(key, 3)
-        params = net.init(k_init, jnp.zeros((env.observation_size,)))
-        tx = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(schedule, eps=1e-5))
-        state = TrainState.create(apply_fn=net.apply, params=params, tx=tx)
-        obs, env_state = jax.vmap(env.reset, in_axes=(0, None))(jax.random.split(k_reset, cfg.num_envs), env_params)
+        k_init, k_run = jax.random.split(key)
+        learner = init(k_init, cfg, env, env_params)
 
-        def env_step(carry, _):
-            state, env_state, obs, key = carry
-            key, k_act, k_env = jax.random.split(key, 3)
-            logits, value = net.apply(state.params, obs)
-            action = jax.random.categorical(k_act, logits)
-            log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
-            obs2, env_state, reward, done, _ = jax.vmap(env.step, in_axes=(0, 0, 0, None))(
-                jax.random.split(k_env, cfg.num_envs), env_state, action, env_params)
-            return (state, env_state, obs2, key), Transition(obs, action, log_prob, value, reward, done)
+        def body(learner, xs):
+            u, k = xs
+            return update(learner, k, learning_rate(cfg, u / cfg.updates))
 
-        def update(carry, _):
-            state, env_state, obs, key = carry
-            (state, env_state, obs, key), traj = jax.lax.scan(env_step, (state, env_state, obs, key), None,
-                                                               cfg.num_steps)
-            _, last_value = net.apply(state.params, obs)
-            adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
-                               cfg.gae_lambda)
-
-            def epoch(carry, _):
-                state, key = carry
-                key, k_perm = jax.random.split(key)
-                perm = jax.random.permutation(k_perm, n_batch)
-                flat = jax.tree.map(lambda a: a.reshape((n_batch,) + a.shape[2:])[perm], (traj, adv, targets))
-                mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:]), flat)
-
-                def minibatch(state, b):
-                    t, a, tg = b
-                    grads, aux = jax.grad(loss, has_aux=True)(state.params, net.apply, t, a, tg, cfg.clip_eps,
-                                                              cfg.vf_coef, cfg.ent_coef)
-                    return state.apply_gradients(grads=grads), aux
-
-                state, aux = jax.lax.scan(minibatch, state, mb)
-                return (state, key), aux
-
-            (state, key), aux = jax.lax.scan(epoch, (state, key), None, cfg.update_epochs)
-            metrics = {"policy_loss": aux[0].mean(), "value_loss": aux[1].mean(), "entropy": aux[2].mean(),
-                       "episodes_ended": traj.done.sum(), "mean_reward": traj.reward.mean()}
-            return (state, env_state, obs, key), metrics
-
-        (state, *_), metrics = jax.lax.scan(update, (state, env_state, obs, key), None, cfg.updates)
-        return state, metrics
+        return jax.lax.scan(body, learner, (jnp.arange(cfg.updates), jax.random.split(k_run, cfg.updates)))
 
     return train
+
+
+def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, block: int, anneal_episodes: int):
+    """``block(learner, key) -> (learner, metrics)``: updates until the learner has ended
+    ``(learner.blocks + 1) * block`` episodes in all (the last update may end a few more, which count
+    toward the next block). The learning rate falls linearly from ``cfg.lr`` to 0 over the first
+    ``anneal_episodes`` episodes (0: constant). ``metrics``: :data:`UPDATE_METRICS` summed over the
+    block's updates, and ``updates``."""
+    update = make_update(cfg, env, env_params)
+
+    def lr_at(episodes):
+        if anneal_episodes <= 0:
+            return jnp.float32(cfg.lr)
+        return learning_rate(dataclasses.replace(cfg, anneal_lr=True), episodes / anneal_episodes)
+
+    def run(learner: Learner, key: jax.Array):
+        target = (learner.blocks + 1) * block
+        zero = {k: (jnp.zeros((), jnp.int32) if k in ("episodes", "shared_starts") else jnp.zeros((), jnp.float32))
+                for k in UPDATE_METRICS}
+
+        def body(carry):
+            learner, sums, n, key = carry
+            key, k = jax.random.split(key)
+            learner, m = update(learner, k, lr_at(learner.episodes))
+            return learner, {k_: sums[k_] + m[k_] for k_ in UPDATE_METRICS}, n + 1, key
+
+        learner, sums, n, _ = jax.lax.while_loop(lambda c: c[0].episodes < target, body,
+                                                 (learner, zero, jnp.zeros((), jnp.int32), key))
+        return learner._replace(blocks=learner.blocks + 1), dict(sums, updates=n)
+
+    return run
 
 
 def greedy(params, obs, hidden: int = 64):

@@ -16,6 +16,7 @@ def main() -> None:
     p.add_argument("--updates", type=int, default=100)
     p.add_argument("--reward-scale", type=float, default=100.0)
     p.add_argument("--num-steps", type=int, default=64)
+    p.add_argument("--num-envs", type=int, default=64)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--episodes", type=int, default=200, help="start states the policies are compared on")
     args = p.parse_args()
@@ -32,14 +33,15 @@ def main() -> None:
 
     k, t = (int(x) for x in args.task.split("v"))
     env, params = gym.KeepAway(KeepAwayConfig(n_keepers=k, n_takers=t)), KeepAwayParams()
-    cfg = ppo.PPOConfig(updates=args.updates, reward_scale=args.reward_scale, num_steps=args.num_steps)
+    cfg = ppo.PPOConfig(updates=args.updates, reward_scale=args.reward_scale, num_steps=args.num_steps,
+                        num_envs=args.num_envs, resets=max(1, args.num_envs // 8))
     t0 = time.perf_counter()
     state, metrics = jax.jit(ppo.make_train(cfg, env, params))(jax.random.key(args.seed))
     jax.block_until_ready(state)
     steps = cfg.updates * cfg.num_envs * cfg.num_steps
     print(f"{args.task}: {cfg.updates} updates, {steps:,} SMDP steps in {time.perf_counter() - t0:.1f} s "
           f"(compilation included); episodes ended in the first and last rollout: "
-          f"{int(metrics['episodes_ended'][0])}, {int(metrics['episodes_ended'][-1])} of "
+          f"{int(metrics['episodes'][0])}, {int(metrics['episodes'][-1])} of "
           f"{cfg.num_envs * cfg.num_steps} steps")
 
     def episode(net_params, key):

@@ -124,3 +124,53 @@ def test_reset_and_step_vmap_over_episodes_as_one_by_one_and_step_starts_a_new_e
             break
     assert bool(done)
     _same(s.world, ENV.reset(keys[1], short)[1].world)
+
+
+def test_the_batched_step_is_the_per_episode_step_with_the_same_decisions():
+    """``reset_batch``/``step_batch_env`` (batch-last, for training) give the worlds, rewards and
+    observations that the per-episode ``reset``/``step_env`` give episode by episode, whatever the
+    other episodes of the batch do (some fly a pass for several iterations while others hold)."""
+    n = 12
+    key = jax.random.key(21)
+    obs_b, batch = ENV.reset_batch(key, n, PARAMS)
+    keys = jax.random.split(key, n)
+    obs_1, states = jax.vmap(ENV.reset, in_axes=(0, None))(keys, PARAMS)
+    np.testing.assert_array_equal(obs_b, obs_1)
+    step_b = jax.jit(ENV.step_batch_env)
+    step_1 = jax.jit(ENV.step_env)
+    rng = np.random.default_rng(4)
+    flights = ended = 0
+    for _ in range(30):
+        actions = jnp.asarray(rng.integers(0, gym.N_ACTIONS, n), jnp.int32)
+        obs_b, batch, r_b, d_b, info = step_b(batch, actions, PARAMS)
+        flights += int((info["iterations"] > 1).sum())
+        for i in range(n):
+            one = jax.tree.map(lambda a: a[i], states)
+            o, s, r, d, _ = step_1(keys[i], one, actions[i], PARAMS)
+            _same(jax.tree.map(lambda a: a[..., i], batch.world), s.world)
+            assert bool(d_b[i]) == bool(d)
+            # the float reward and features, batched, may round apart in the last bit (a vectorised
+            # division); the world's integer state is exact
+            assert float(r_b[i]) == pytest.approx(float(r), abs=2.5e-7)  # a float32 ulp of the shares survived
+            np.testing.assert_allclose(obs_b[i], o, rtol=1e-6)
+            states = jax.tree.map(lambda a, b: a.at[i].set(b), states, s)
+    ended = int(d_b.sum())
+    assert flights > 10 and ended > 0
+
+
+def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
+    short = KeepAwayParams(kick_noise_deg=10.0, max_iterations=2)
+    n, resets = 6, 4
+    _, batch = ENV.reset_batch(jax.random.key(0), n, short)
+    key = jax.random.key(5)
+    # every episode ends at its second iteration: all six at once, more than the four starts drawn
+    for _ in range(2):
+        _, batch, _, done, info = ENV.step_batch(key, batch, jnp.zeros(n, jnp.int32), short, resets)
+    assert bool(done.all()) and int(info["shared_starts"]) == n - resets
+    k_starts, _ = jax.random.split(key)
+    _, fresh = ENV.reset_batch(k_starts, resets, short)
+    for i in range(n):  # the i-th episode to end takes start i (mod resets), with a noise word of its own
+        _same(jax.tree.map(lambda a: a[..., i], batch.world), jax.tree.map(lambda a: a[..., i % resets], fresh.world))
+        assert int(batch.world.t[i]) == 0 and not bool(batch.world.done[i])
+    words = np.asarray(batch.noise_word)
+    assert len(set(words.tolist())) == n

@@ -38,6 +38,10 @@ METHODS = {
     "hyperneat": ["--config", "configs/hyperneat_3v2.py", "--config.population_size=12", "--config.objective=hybrid",
                   *COMMON],
     "cma_es": ["--config", "configs/cma_es_3v2.py", "--config.population_size=8", *COMMON],
+    # PPO: a population of one network; 16 episodes side by side, 48 training episodes a generation
+    "ppo": ["--config", "configs/ppo_3v2.py", "--config.ppo.episodes_per_generation=48", "--config.ppo.num_envs=16",
+            "--config.ppo.num_steps=16", "--config.ppo.hidden=16", "--config.ppo.resets=4",
+            "--config.ppo.anneal_episodes=288", *COMMON],
 }
 NEAT_LEARNERS = ("neat", "hyperneat")  # NEAT's own metrics and genome checks
 
@@ -146,8 +150,14 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
         assert int(rows[-1]["n_species"]) == len(np.unique(np.asarray(before_last.learner.species)))
         links = np.sum(np.asarray(pop.conn_valid) & np.asarray(pop.conn_enabled), axis=1)
         np.testing.assert_allclose(float(rows[-1]["mean_links"]), links.mean(), rtol=1e-6)
-    else:
+    elif method == "cma_es":
         assert float(rows[-1]["sigma"]) == float(_final_state(run_dir)[0].learner.std)
+    else:  # PPO: each generation trained on at least its block of new episodes, and they add up
+        learner = _final_state(run_dir)[0].learner
+        ended = np.cumsum([int(r["train_episodes"]) for r in rows])
+        assert int(learner.episodes) == ended[-1] and int(learner.blocks) == GENERATIONS
+        assert all(e >= 48 * (g + 1) for g, e in enumerate(ended)) and ended[-1] < 48 * GENERATIONS + 16 * 16
+        assert int(learner.updates) == sum(int(r["updates"]) for r in rows)
     # each generation's champion replayed on the validation states, next to the hand-coded policies there
     base = json.loads((run_dir / "baselines.json").read_text())
     assert base["trials"] == cfg["validation_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}
@@ -178,8 +188,11 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
         assert im.format == "PNG" and im.size[0] > 300
     with Image.open(run_dir / "champion.gif") as im:
         assert im.format == "GIF" and im.n_frames > 1
-    with Image.open(run_dir / "champion.png") as im:
-        assert im.format == "PNG" and im.size[0] > 200
+    if method == "ppo":  # no picture of a network of 2 x 2 dense layers
+        assert not (run_dir / "champion.png").exists()
+    else:
+        with Image.open(run_dir / "champion.png") as im:
+            assert im.format == "PNG" and im.size[0] > 200
     if method == "hyperneat":  # champion.png is the substrate; the CPPN is drawn beside it
         with Image.open(run_dir / "champion_cppn.png") as im:
             assert im.format == "PNG" and im.size[0] > 200
@@ -188,7 +201,7 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     assert steps == sorted({GENERATIONS - 1, GENERATIONS, int(np.argmax(val)) + 1})
     lines = [line for line in out.splitlines() if line.startswith("gen ")]
     assert len(lines) == GENERATIONS and "ETA" in lines[-1] and "s/gen" in lines[-1]
-    assert ("species" if method in NEAT_LEARNERS else "sigma") in lines[-1]
+    assert {"neat": "species", "hyperneat": "species", "cma_es": "sigma", "ppo": "train return"}[method] in lines[-1]
 
 
 @pytest.mark.slow  # ~85 s; the default suite runs it on HyperNEAT's hybrid run (test_train_hyperneat.py)
@@ -246,7 +259,15 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert "foo: no such config field" in _err(capsys, w + ["--config.foo=1"])
     assert "neat.nope: no such config field" in _err(capsys, w + ["--config.neat.nope=1"])
     err = _err(capsys, w + ["--config.population_size=1"])
-    assert "population_size: allowed an integer in [2, 100000], got 1" in err
+    assert "population_size: allowed an integer in [2, 100000] for method 'neat', got 1" in err
+    ppo = ["--config", "configs/ppo_3v2.py"]
+    assert "population_size: allowed 1 for method 'ppo', got 2" in _err(
+        capsys, w + ppo + ["--config.population_size=2"])
+    assert "objective: allowed 'fitness' for method 'ppo'" in _err(capsys, w + ppo + ["--config.objective=hybrid"])
+    assert "ppo.num_minibatches: allowed a divisor of num_envs x num_steps = 4096" in _err(
+        capsys, w + ppo + ["--config.ppo.num_minibatches=3"])
+    assert "ppo.gamma: allowed a number in [0, 1]" in _err(capsys, w + ppo + ["--config.ppo.gamma=1.5"])
+    assert "ppo.resets: allowed an integer in [1, num_envs = 64]" in _err(capsys, w + ppo + ["--config.ppo.resets=65"])
     assert "trials: allowed an integer, got 'many'" in _err(capsys, w + ["--config.trials=many"])
     assert "trials: allowed an integer, got '2.5'" in _err(capsys, w + ["--config.trials", "2.5"])
     assert "task:" in _err(capsys, w + ["--config.task=9v2"])

@@ -259,8 +259,10 @@ def validate(cfg: ml_collections.ConfigDict) -> Experiment:
         raise ConfigError(str(e)) from None
     need(isinstance(cfg.layout, str) and cfg.layout in cls.layouts, "layout",
          f"one of {cls.layouts} for method {method!r}", cfg.layout)
-    need(is_int(cfg.population_size) and 2 <= cfg.population_size <= 100_000, "population_size",
-         "an integer in [2, 100000]", cfg.population_size)
+    low, high = cls.population_sizes
+    need(is_int(cfg.population_size) and low <= cfg.population_size <= high, "population_size",
+         f"an integer in [{low}, {high}] for method {method!r}" if low < high else f"{low} for method {method!r}",
+         cfg.population_size)
     need(is_int(cfg.trials) and 1 <= cfg.trials <= 100_000, "trials", "an integer in [1, 100000]", cfg.trials)
     need(is_int(cfg.generations) and 1 <= cfg.generations <= 1_000_000, "generations",
          "an integer in [1, 1000000]", cfg.generations)

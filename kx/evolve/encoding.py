@@ -59,6 +59,8 @@ class Encoding(abc.ABC):
     name: ClassVar[str]
     section: ClassVar[str]
     layouts: ClassVar[tuple[str, ...]] = ("fixed", "full")
+    #: the population sizes it takes (``population_size``), smallest and largest
+    population_sizes: ClassVar[tuple[int, int]] = (2, 100_000)
     #: metrics.csv columns the encoding adds (keys of ``tell``'s metrics), after the run loop's own
     metric_fields: ClassVar[tuple[str, ...]] = ()
     #: the metric drawn in progress.png's lower panel (None: no panel)
@@ -123,6 +125,11 @@ class Encoding(abc.ABC):
         if not hasattr(self, "_policy"):
             self._policy = self.policy_for(self.sim)
         return self._policy
+
+    def episodes_per_generation(self) -> int:
+        """The episodes a generation learns from (its budget): by default the population's ``population_size
+        x trials`` evaluations."""
+        return self.population_size * self.cfg.trials
 
     def individual(self, population: Any, i) -> Any:
         """Genotype ``i`` of ``population``."""

@@ -1,6 +1,6 @@
 """The registry of encodings: which :class:`~kx.evolve.encoding.Encoding` runs ``method = <name>``.
 
-The built-in encodings (:mod:`kx.evolve.encodings`: ``neat``, ``hyperneat``, ``cma_es``) are registered
+The built-in encodings (:mod:`kx.evolve.encodings`: ``neat``, ``hyperneat``, ``cma_es``, ``ppo``) are registered
 the first time the registry is asked (:func:`get`, :func:`names`); another one is a class and
 ``register(cls)`` (``tests/test_run_loop.py`` trains one defined in the test file).
 """
@@ -11,7 +11,7 @@ from kx.evolve.encoding import Encoding
 
 ENCODINGS: dict[str, type[Encoding]] = {}
 
-BUILTIN = ("neat", "hyperneat", "cma_es")
+BUILTIN = ("neat", "hyperneat", "cma_es", "ppo")
 
 
 def register(cls: type[Encoding]) -> type[Encoding]:
@@ -45,7 +45,8 @@ def load_builtin() -> None:
     from kx.evolve.encodings.cma_es import CMAESEncoding
     from kx.evolve.encodings.hyperneat import HyperNEATEncoding
     from kx.evolve.encodings.neat import NEATEncoding
+    from kx.evolve.encodings.ppo import PPOEncoding
 
-    for cls in (CMAESEncoding, NEATEncoding, HyperNEATEncoding):
+    for cls in (CMAESEncoding, NEATEncoding, HyperNEATEncoding, PPOEncoding):
         register(cls)
     _loaded = True

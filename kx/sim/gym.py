@@ -19,6 +19,18 @@ episode's noise word, drawn at reset, and the iteration (:func:`kx.sim.env.kick_
 plays it; ``step``'s key is not read (an episode is the same however its steps are batched). ``step``
 starts a new episode once one ends (gymnax's convention, with ``reset``'s key); ``step_env`` leaves a
 finished episode as it is.
+
+**Many episodes at once, fast.** vmapped, the per-episode functions put the batch first, and the world's
+code, written batch-last (:mod:`kx.sim.env`), then costs about 45x more per episode (4.9 us against
+0.11 us for an iteration of 2048 3v2 episodes, 2026-12-03); and a vmapped SMDP step runs every episode's
+iterations until the slowest one reaches its decision. :meth:`KeepAway.reset_batch` and
+:meth:`KeepAway.step_batch` play ``n`` episodes batch-last with the same rules (a test steps both with the
+same decisions and gets the same worlds): each episode iterates until its own next decision, the others
+wait, unchanged. A start state costs about 50 iterations (5.7 us: top-k of uniform scores over the
+field's cells), so ``step_batch`` draws ``resets`` start states per step rather than one per episode
+(Craftax's "optimistic resets", Matthews et al. 2024): the episodes that end in a step take them in
+order, each with a noise word of its own; should more end in one step than there are starts, the
+later ones share the earlier ones' starts (``info["shared_starts"]`` counts them).
 """
 
 from __future__ import annotations
@@ -28,6 +40,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from kx.sim import env, observe
+from kx.sim.ops import pick
 from kx.sim.types import KeepAwayConfig, KeepAwayParams, Reason, State
 
 N_ACTIONS = 3  # hold, pass to the nearest teammate, to the second nearest (the fixed layout's outputs)
@@ -96,6 +109,74 @@ class KeepAway:
         obs_reset, state_reset = self.reset(key, params)
         pick = lambda a, b: jax.lax.select(done, a, b)  # noqa: E731
         return (jax.tree.map(pick, obs_reset, obs), jax.tree.map(pick, state_reset, nxt), reward, done, info)
+
+    # ------------------------------------------------------------------ many episodes, batch-last
+
+    def observation_batch(self, state: "BatchState") -> jax.Array:
+        """The observations ``[n, 13]`` of ``n`` batch-last episodes."""
+        return jnp.moveaxis(observe.fixed_obs(state.world, self.config), 0, -1)
+
+    def reset_batch(self, key: jax.Array, n: int, params: KeepAwayParams) -> tuple[jax.Array, "BatchState"]:
+        """``n`` episodes' observations ``[n, 13]`` and state: episode ``i`` is ``reset(split(key, n)[i])``'s."""
+        keys = jax.random.split(key, n)
+        split = jax.vmap(jax.random.split)(keys)
+        world = jax.vmap(lambda k: env.reset(k, params, self.config), out_axes=-1)(split[:, 0])
+        words = jax.vmap(lambda k: jax.random.bits(k, (), jnp.uint32))(split[:, 1])
+        state = BatchState(world=world, noise_word=words)
+        return self.observation_batch(state), state
+
+    def step_batch_env(self, state: "BatchState", action: jax.Array,
+                       params: KeepAwayParams) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
+        """:meth:`step_env` of ``n`` episodes, ``action [n]``: each episode's decision, then its iterations
+        until its own next decision or end (an episode at its decision waits, unchanged, for the others)."""
+        s_max = env.noise_limit(params.kick_noise_deg)
+        word = state.noise_word
+
+        def iterate(world, keeper):
+            return env.transition(world, keeper, env.kick_noise(word, world.t, s_max), params, self.config)
+
+        def flying(w):
+            return (w.holder < 0) & ~w.done
+
+        order = observe.teammate_order(state.world, self.config)
+        world = iterate(state.world, pick(order, jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32)))
+
+        def body(w):
+            moved = iterate(w, jnp.full_like(w.holder, -1))
+            fly = flying(w)
+            return jax.tree.map(lambda new, old: jnp.where(fly, new, old), moved, w)
+
+        world = jax.lax.while_loop(lambda w: jnp.any(flying(w)), body, world)
+        reward = survived(world, params) - survived(state.world, params)
+        nxt = state.replace(world=world)
+        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
+        return self.observation_batch(nxt), nxt, reward, world.done, info
+
+    def step_batch(self, key: jax.Array, state: "BatchState", action: jax.Array, params: KeepAwayParams,
+                   resets: int) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
+        """:meth:`step_batch_env`, and new episodes in place of those that ended: ``resets`` start states
+        drawn from ``key`` (those of ``reset_batch(key, resets)``), taken in episode order by the episodes
+        that ended, each with a noise word of its own (``info["shared_starts"]``: how many episodes had to
+        share a start, when more than ``resets`` ended)."""
+        obs, nxt, reward, done, info = self.step_batch_env(state, action, params)
+        k_starts, k_words = jax.random.split(key)
+        _, fresh = self.reset_batch(k_starts, resets, params)
+        n = done.shape[0]
+        rank = jnp.cumsum(done.astype(jnp.int32)) - 1  # the i-th episode to end takes start i (mod resets)
+        take = jnp.where(done, rank % resets, 0)
+        words = jax.random.bits(k_words, (n,), jnp.uint32)
+        world = jax.tree.map(lambda f, w: jnp.where(done, jnp.take(f, take, axis=-1), w), fresh.world, nxt.world)
+        out = BatchState(world=world, noise_word=jnp.where(done, words, nxt.noise_word))
+        info = dict(info, shared_starts=jnp.maximum(done.sum() - resets, 0))
+        return self.observation_batch(out), out, reward, done, info
+
+
+@struct.dataclass
+class BatchState:
+    """``n`` episodes, batch-last: ``world`` ``[.., n]``, ``noise_word [n]``."""
+
+    world: State
+    noise_word: jax.Array
 
 
 def survived(world: State, params: KeepAwayParams) -> jax.Array:

@@ -1,0 +1,188 @@
+"""PPO as a method of the run loop: ``method = "ppo"``, a gradient-based baseline in the same world and
+with the same budget of episodes as NEAT.
+
+The learner is :mod:`kx.ppo` (flax actor-critic on NEAT's fixed layout, optax, the clipped objective with
+GAE over SMDP steps of the keep-away environment, :mod:`kx.sim.gym`). The run loop sees a *population of
+one*: each generation ``ask`` hands it the network's current weights, which play the generation's
+``trials`` training start states greedily (the argmax of the actor's logits, as NEAT's networks decide)
+for the generation's training fitness, and, as every method's generation champion, the validation
+states; ``tell`` then trains on ``ppo.episodes_per_generation`` new episodes of the sampled policy (4500
+by default: NEAT's 150 genomes x 30 trials, so that metrics rows of the two line up generation by
+generation), with the learning rate falling linearly to 0 over ``ppo.anneal_episodes`` episodes (the
+configs set it to ``generations x episodes_per_generation``; a field of its own, so that a run resumed for
+more generations computes what it computed). The greedy episodes on training and validation states are
+not learned from (NEAT's validation episodes are not either); :meth:`PPOEncoding.episodes_per_generation`
+counts the training episodes.
+The run's champion is, as for every method, the generation's weights that validated best.
+
+A transferred run starts from the source's weights (``transfer.seeding = "population"``: the network the
+source's training ended with; ``"champion"``: its validated champion), with a fresh optimiser and new
+episodes: the 13/3 layout is the same in every task.
+
+Config section ``ppo``: the :class:`kx.ppo.PPOConfig` fields (but ``updates``, which the budget in
+episodes decides, and ``anneal_lr``), ``episodes_per_generation`` and ``anneal_episodes``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import ml_collections
+import numpy as np
+
+from kx import ppo
+from kx.evolve.encoding import Encoding
+from kx.evolve.errors import is_int, is_number, need
+from kx.sim import gym, observe
+from kx.sim.policies import Policy
+from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+#: the config fields of ``ppo``: PPOConfig's but ``updates``
+FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig) if f.name not in ("updates", "anneal_lr"))
+
+
+@functools.lru_cache(maxsize=None)
+def greedy_policy(sim: KeepAwayConfig, hidden: int) -> Policy:
+    """The actor's greedy decision as a shared-table policy of the evaluator: ``params.table`` the flax
+    parameters of G networks (leading axis G), ``params.index [*B]`` each lane's. With one network (a
+    generation's, the champion) every lane applies it as one matrix product; with several, each lane
+    gathers its own."""
+    net = ppo.ActorCritic(hidden=hidden)
+
+    def apply(params, state, key):
+        x = observe.fixed_obs(state, sim)  # [13, *B]
+        batch = x.shape[1:]
+        flat = x.reshape(x.shape[0], -1).T  # [M, 13]
+        g = jax.tree.leaves(params.table)[0].shape[0]
+        if g == 1:
+            logits, _ = net.apply(jax.tree.map(lambda a: a[0], params.table), flat)
+        else:
+            rows = jax.tree.map(lambda a: a[params.index.reshape(-1)], params.table)
+            logits, _ = jax.vmap(net.apply)(rows, flat)
+        return observe.decode_ranked(logits.T.reshape((logits.shape[-1],) + batch), state, sim)
+
+    return Policy(f"ppo-h{hidden}", apply, shared=True)
+
+
+@functools.lru_cache(maxsize=None)
+def _block_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayParams, block: int, anneal: int):
+    """The jitted block of updates of one shape, shared by the runs of a process."""
+    return jax.jit(ppo.make_block(cfg, gym.KeepAway(sim), sim_params, block, anneal))
+
+
+@functools.lru_cache(maxsize=None)
+def _init_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayParams):
+    return jax.jit(lambda key, params: ppo.init(key, cfg, gym.KeepAway(sim), sim_params, params))
+
+
+_as_population = jax.jit(lambda params: jax.tree.map(lambda a: a[None], params))
+
+
+class PPOEncoding(Encoding):
+    name = "ppo"
+    section = "ppo"
+    layouts = ("fixed",)
+    population_sizes = (1, 1)
+    # ask and the policy's parameters are copies; a batched group runs each run's block of updates alone
+    vmap_exact = frozenset({"ask", "policy_params"})
+    metric_fields = ("train_episodes", "train_return", "updates", "policy_loss", "value_loss", "entropy",
+                     "shared_starts")
+    plot_field = "train_return"
+
+    @classmethod
+    def default_config(cls) -> ml_collections.ConfigDict:
+        d = ppo.PPOConfig()
+        c = {f: getattr(d, f) for f in FIELDS}
+        c["episodes_per_generation"] = 4500  # NEAT's 150 genomes x 30 trials
+        c["anneal_episodes"] = 20 * 4500  # the learning rate falls to 0 over these (0: constant); set it with
+        # generations (a field of its own, so that a run resumed for more generations computes what it did)
+        return ml_collections.ConfigDict(c)
+
+    @classmethod
+    def defaults(cls) -> dict:
+        return {"population_size": 1}
+
+    def __init__(self, cfg, sim, sim_params):
+        super().__init__(cfg, sim, sim_params)
+        c = cfg.ppo
+        need(cfg.objective == "fitness", "objective", "'fitness' for method 'ppo' (it learns from the episodes' "
+             "rewards; a novelty score needs a population)", cfg.objective)
+        for f in ("num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "resets"):
+            need(is_int(c[f]) and 1 <= c[f] <= 1_000_000, f"ppo.{f}", "an integer in [1, 1000000]", c[f])
+        for f in ("gamma", "gae_lambda"):
+            need(is_number(c[f]) and 0.0 <= c[f] <= 1.0, f"ppo.{f}", "a number in [0, 1]", c[f])
+        for f in ("clip_eps", "lr", "max_grad_norm", "reward_scale"):
+            need(is_number(c[f]) and c[f] > 0, f"ppo.{f}", "a number > 0", c[f])
+        for f in ("ent_coef", "vf_coef"):
+            need(is_number(c[f]) and c[f] >= 0, f"ppo.{f}", "a number >= 0", c[f])
+        need(is_int(c.anneal_episodes) and c.anneal_episodes >= 0, "ppo.anneal_episodes",
+             "an integer >= 0 (0: a constant learning rate)", c.anneal_episodes)
+        need(is_int(c.episodes_per_generation) and c.episodes_per_generation >= 1, "ppo.episodes_per_generation",
+             "an integer >= 1", c.episodes_per_generation)
+        need((c.num_envs * c.num_steps) % c.num_minibatches == 0, "ppo.num_minibatches",
+             f"a divisor of num_envs x num_steps = {c.num_envs * c.num_steps}", c.num_minibatches)
+        need(c.resets <= c.num_envs, "ppo.resets", f"an integer in [1, num_envs = {c.num_envs}]", c.resets)
+        self.ppo = ppo.PPOConfig(**{f: (float(c[f]) if isinstance(getattr(ppo.PPOConfig, f), float) else c[f])
+                                    for f in FIELDS})
+        self.block = int(c.episodes_per_generation)
+        self.anneal = int(c.anneal_episodes)
+        self.env = gym.KeepAway(sim)
+
+    def episodes_per_generation(self) -> int:
+        return self.block
+
+    def init(self, key):
+        return _init_program(self.ppo, self.sim, self.sim_params)(key, None)
+
+    def ask(self, key, state):
+        return _as_population(state.params), state
+
+    def tell(self, key, population, score, fitness, state):
+        state, m = _block_program(self.ppo, self.sim, self.sim_params, self.block, self.anneal)(state, key)
+        n = jnp.maximum(m["updates"], 1).astype(jnp.float32)
+        return state, {"train_episodes": m["episodes"], "train_return": m["return_sum"] / jnp.maximum(m["episodes"], 1),
+                       "updates": m["updates"], "policy_loss": m["policy_loss"] / n, "value_loss": m["value_loss"] / n,
+                       "entropy": m["entropy"] / n, "shared_starts": m["shared_starts"]}
+
+    def policy_for(self, sim):
+        return greedy_policy(sim, self.ppo.hidden)
+
+    def policy_params(self, population):
+        return population
+
+    def transfer_problems(self, source, state, seeding):
+        out = []
+        if seeding == "half":
+            out.append("seeding 'half': PPO carries one network, not a population; allowed 'population' (the "
+                       "weights the source's training ended with) or 'champion' (its validated champion)")
+        if source.ppo.hidden != self.ppo.hidden:
+            out.append(f"the source's network has {source.ppo.hidden} hidden units a layer (ppo.hidden), this "
+                       f"run's {self.ppo.hidden}: they do not fit")
+        return out
+
+    def transfer(self, key, source, state, seeding, order):
+        """A fresh learner (optimiser, episodes) whose network starts from the source's weights."""
+        params = state.learner.params if seeding == "population" else state.champion
+        return _init_program(self.ppo, self.sim, self.sim_params)(key, params)
+
+    def check(self, state, champion):
+        errs = []
+        for name, tree in (("weights", state.params), ("optimiser state", state.opt_state)):
+            if not all(np.all(np.isfinite(np.asarray(a))) for a in jax.tree.leaves(tree)):
+                errs.append(f"PPO {name} hold non-finite values")
+        if champion is not None and not all(np.all(np.isfinite(np.asarray(a))) for a in jax.tree.leaves(champion)):
+            errs.append("champion: non-finite weights")
+        return errs
+
+    def describe(self) -> str:
+        c = self.ppo
+        return (f"ppo (fixed layout: 13 inputs, 3 actions; actor and critic of 2 x {c.hidden} tanh units; "
+                f"{c.num_envs} episodes x {c.num_steps} SMDP steps an update; {self.block} training episodes a "
+                f"generation)")
+
+    def progress(self, row) -> str:
+        return f"train return {float(row['train_return']):.3f}, {int(row['updates'])} updates"
+
