@@ -150,16 +150,15 @@ def init(key: jax.Array, cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAway
 UPDATE_METRICS = ("policy_loss", "value_loss", "entropy", "return_sum", "episodes", "shared_starts")
 
 
-def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
-    """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps of the
-    ``num_envs`` episodes with the sampled policy, then ``update_epochs`` passes of PPO's clipped loss over
-    it in ``num_minibatches`` shuffled minibatches, at learning rate ``lr``."""
+def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+    """``rollout(learner, key) -> ((learner, ended, return_sum, shared, iterations), traj)``: ``num_steps``
+    SMDP steps of the ``num_envs`` episodes with the sampled policy (:class:`Transition` ``[T, N]``), the
+    learner's episodes advanced, and what they did: episodes ended, the sum of their returns, episodes
+    that shared a start, the world's iterations played."""
     net = ActorCritic(hidden=cfg.hidden)
-    tx = optimiser(cfg)
-    n_batch = cfg.num_envs * cfg.num_steps
 
     def env_step(carry, key):
-        learner, ended, return_sum, shared = carry
+        learner, ended, return_sum, shared, iterations = carry
         k_act, k_env = jax.random.split(key)
         logits, value = net.apply(learner.params, learner.obs)
         action = jax.random.categorical(k_act, logits)
@@ -168,17 +167,32 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
         returns = learner.returns + reward
         nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
         carry = (nxt, ended + done.sum(dtype=jnp.int32), return_sum + jnp.where(done, returns, 0.0).sum(),
-                 shared + info["shared_starts"].astype(jnp.int32))
+                 shared + info["shared_starts"].astype(jnp.int32), iterations + info["iterations"].sum(dtype=jnp.int32))
         return carry, Transition(learner.obs, action, log_prob, value, reward, done)
 
     def rollout(learner, key):
         zero = jnp.zeros((), jnp.int32)
-        return jax.lax.scan(env_step, (learner, zero, jnp.zeros((), jnp.float32), zero),
+        return jax.lax.scan(env_step, (learner, zero, jnp.zeros((), jnp.float32), zero, zero),
                             jax.random.split(key, cfg.num_steps))
+
+    return rollout
+
+
+def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+    """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps of the
+    ``num_envs`` episodes with the sampled policy, then ``update_epochs`` passes of PPO's clipped loss over
+    it in ``num_minibatches`` shuffled minibatches, at learning rate ``lr``. ``metrics``: the losses and
+    entropy (means over the minibatches), and of the rollout: the episodes that ended, the sum of their
+    returns, the episodes that shared a start (:meth:`kx.sim.gym.KeepAway.step_batch`) and the world's
+    iterations played."""
+    net = ActorCritic(hidden=cfg.hidden)
+    tx = optimiser(cfg)
+    n_batch = cfg.num_envs * cfg.num_steps
+    rollout = make_rollout(cfg, env, env_params)
 
     def update(learner: Learner, key: jax.Array, lr: jax.Array):
         k_roll, k_epochs = jax.random.split(key)
-        (learner, ended, return_sum, shared), traj = rollout(learner, k_roll)
+        (learner, ended, return_sum, shared, iterations), traj = rollout(learner, k_roll)
         _, last_value = net.apply(learner.params, learner.obs)
         adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
                            cfg.gae_lambda)
@@ -205,7 +219,7 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
         learner = learner._replace(params=params, opt_state=opt_state, updates=learner.updates + 1,
                                    decisions=learner.decisions + n_batch, episodes=learner.episodes + ended)
         metrics = {"policy_loss": aux[0].mean(), "value_loss": aux[1].mean(), "entropy": aux[2].mean(),
-                   "return_sum": return_sum, "episodes": ended, "shared_starts": shared}
+                   "return_sum": return_sum, "episodes": ended, "shared_starts": shared, "iterations": iterations}
         return learner, metrics
 
     return update

@@ -14,8 +14,8 @@ baseline is measured in the same run (these machines are shared and noisy).
   evaluation and evolution, with the share of executed simulator steps that were live.
 * ``learning``: the validated champions of the default config (NEAT) and of HyperNEAT over 10 seeds on
   1000 test states, beside the same budget of CMA-ES (evosax, ``configs/cma_es_3v2.py``) on a linear
-  policy of the 13/3 layout, through the same run loop; and the same 3v2 champions zero-shot on 4v3,
-  5v3 and 6v4.
+  policy of the 13/3 layout, and of PPO (flax, optax; ``configs/ppo_3v2.py``) at the same 90,000
+  episodes, through the same run loop; and the same 3v2 champions zero-shot on 4v3, 5v3 and 6v4.
 * ``hyperneat``: seconds per generation of HyperNEAT and of NEAT (3v2, 150 x 30) on the same start
   states in one run, split into building the policies (the substrates), evaluation, evolution and
   validation.
@@ -49,6 +49,7 @@ from kx.bench import (
     neat_xor,
     novelty,
     policies,
+    ppo,
     protocol,
     runs,
     sim,
@@ -60,7 +61,7 @@ from kx.bench import (
 BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
            "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
            "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run, "policies": policies.run,
-           "protocol": protocol.run}
+           "protocol": protocol.run, "ppo": ppo.run}
 
 
 def main(argv=None) -> None:
@@ -86,9 +87,11 @@ def main(argv=None) -> None:
                    help="learning, transfer: seeds 0..N-1 of each learner (default 10 for learning, 5 for transfer)")
     p.add_argument("--objective", default="fitness", help="transfer: the objective of the source and target runs")
     p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
-    p.add_argument("--methods", default="NEAT,HyperNEAT,CMA-ES",
-                   help="learning: the learners to run, comma-separated (default: all three; the summary line "
+    p.add_argument("--methods", default="NEAT,HyperNEAT,CMA-ES,PPO",
+                   help="learning: the learners to run, comma-separated (default: all four; the summary line "
                         "needs NEAT and CMA-ES)")
+    p.add_argument("--ppo-warmup", type=int, default=150,
+                   help="ppo: updates that train the network before the samples (a fresh one loses the ball at once)")
     p.add_argument("--skip", type=int, default=5,
                    help="neat_generation, generation, hyperneat: first generations left out (they compile)")
     p.add_argument("--processes", type=int, nargs="+", default=[1, 2],

@@ -1,5 +1,5 @@
-"""``python -m kx.bench learning``: the validated champions of NEAT, HyperNEAT and CMA-ES (the same budget)
-over 10 seeds on 1000 test states, and the same 3v2 champions zero-shot on 4v3, 5v3 and 6v4."""
+"""``python -m kx.bench learning``: the validated champions of NEAT, HyperNEAT, CMA-ES and PPO (the same
+budget of episodes) over 10 seeds on 1000 test states, and the same 3v2 champions zero-shot on 4v3, 5v3 and 6v4."""
 
 from __future__ import annotations
 
@@ -49,7 +49,9 @@ def run(args) -> None:
     play the same ``--test-trials`` test states (the test stream of seed 2026, which no run trains or
     validates on) with the same kick noise. Zero-shot transfer: the same 3v2 champions, unchanged, on
     the test states of 4v3, 5v3 and 6v4 (HyperNEAT's substrate and the fixed 13/3 layout fit every
-    task), beside the hand-coded policies there."""
+    task), beside the hand-coded policies there. PPO (``configs/ppo_3v2.py``: 20 generations of 4500 training
+    episodes, NEAT's 150 x 30 a generation) through the same run loop, its generation champions the
+    network's greedy decisions (:mod:`kx.evolve.encodings.ppo`)."""
     import numpy as np
 
     from kx import runtime
@@ -61,7 +63,8 @@ def run(args) -> None:
     from kx.sim.types import KeepAwayConfig
 
     seeds = list(range(args.seeds))
-    configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py"}
+    configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py",
+               "PPO": "configs/ppo_3v2.py"}
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not chosen or any(m not in configs for m in chosen):
         raise SystemExit(f"--methods: allowed a comma-separated subset of {tuple(configs)}, got {args.methods!r}")
@@ -71,9 +74,15 @@ def run(args) -> None:
     sim, params = exp.sim, exp.sim_params
     keys = streams.test(LEARNING_TEST_SEED)
     starts = env.reset_batch(keys.starts, args.test_trials, params, sim)
-    print(f"learning: {sim.name}; " + "; ".join(
-        f"{k} ({c.method}, population {c.population_size}, {c.generations} generations, {c.trials} trials: "
-        f"{c.population_size * c.generations} evaluations)" for k, c in loaded.items())
+    def budget(c):
+        if c.method == "ppo":
+            return (f"{c.ppo.episodes_per_generation} training episodes a generation, {c.generations} generations: "
+                    f"{c.ppo.episodes_per_generation * c.generations:,} episodes")
+        return (f"population {c.population_size}, {c.generations} generations, {c.trials} trials: "
+                f"{c.population_size * c.generations} evaluations, {c.population_size * c.generations * c.trials:,} "
+                "episodes")
+
+    print(f"learning: {sim.name}; " + "; ".join(f"{k} ({c.method}, {budget(c)})" for k, c in loaded.items())
         + f"; seeds {seeds[0]}..{seeds[-1]}; validated champions on {args.test_trials} test states", flush=True)
     test = {}
     for name, make in BASELINES.items():
@@ -122,5 +131,8 @@ def run(args) -> None:
         hyper, neat = mean["HyperNEAT"], mean["NEAT"]
         print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, "
               f"{hyper / neat:.2f}x NEAT)")
+    if "PPO" in mean and "NEAT" in mean:
+        print(f"PPO: {mean['PPO']:.4f} fitness ({mean['PPO'] / test['heuristic']:.1f}x the heuristic, "
+              f"{mean['PPO'] / mean['NEAT']:.2f}x NEAT)")
     if "NEAT" in mean and "CMA-ES" in mean:
         print(f"learning: {mean['NEAT']:.4f} fitness (ratio {mean['NEAT'] / mean['CMA-ES']:.2f} vs cma_es)")

@@ -1,0 +1,125 @@
+"""``python -m kx.bench ppo``: environment steps per second of PPO's training against the evaluator's live
+steps per second for NEAT's policy, measured in the same run, in 4v3.
+
+**PPO's side** is what a ``method = "ppo"`` run pays: the update of :func:`kx.ppo.make_update` (a rollout
+of ``num_envs x num_steps`` SMDP steps of the sampled policy through the environment's batched step, then
+``update_epochs`` passes of the clipped loss over it) with ``configs/ppo_4v3.py``'s settings (64 episodes
+x 64 steps, 4 epochs of 4 minibatches, 2 x 64 tanh units). A fresh network loses the ball within a few
+steps, and such short episodes are not what training pays for most of its budget, so the network is first
+trained for ``--ppo-warmup`` updates (their time, compilation included, is reported apart); then each
+sample runs updates for at least ``--sample-seconds``. An environment step is an SMDP step, from one
+decision of the holder to the next: the figure counts the decisions PPO learns from, and beside it the
+world's iterations they spanned. The rollout alone (the same steps, no learning) is timed too.
+
+**NEAT's side** is the run loop's evaluator (:func:`kx.sim.evaluate.evaluate`) playing the committed trained
+4v3 population of ``kx bench policies`` (``kx/bench/data/policies/neat_4v3.npz``: 150 genomes on 30
+training start states, 4500 lanes), its figure the live steps (iterations of episodes still running; each
+is a decision of the holder's network while a keeper holds the ball) per second.
+
+The two are sampled in turn (``--repeats`` rounds); each figure is the median of its samples and the
+ratio the median of the ratios of samples of the same round. They do different work: NEAT's evaluator
+plays 4500 fixed networks forward, PPO steps 64 episodes and learns from every decision (a forward pass
+to act, then forward and backward passes in each epoch), so the ratio is what PPO's training costs per
+step of the world against what NEAT's evaluation costs, not a measure of either implementation alone.
+
+The last line::
+
+    ppo: <steps/s> env steps/s (ratio <x> vs neat evaluator)
+"""
+
+from __future__ import annotations
+
+import time
+
+
+def run(args) -> None:
+    import jax
+    import numpy as np
+
+    from kx import ppo
+    from kx.bench.policies import _sample, _work, load_fixture
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import streams
+    from kx.sim import env
+
+    trainer, population, meta = load_fixture("neat")
+    exp = trainer.exp
+    keys = streams.training(meta["seed"], meta["generation"])
+    starts = env.reset_batch(keys.starts, trainer.cfg.trials, exp.sim_params, exp.sim)
+    neat_work = _work(trainer.encoding.policy, trainer.encoding.policy_params(population), starts,
+                      (exp.sim_params, exp.sim), keys.eval)
+
+    cfg = cfg_lib.load("configs/ppo_4v3.py", ["gif=false"])
+    enc = cfg_lib.validate(cfg).encoding
+    if (enc.sim, enc.sim_params) != (exp.sim, exp.sim_params):
+        raise SystemExit("configs/ppo_4v3.py: its task differs from the NEAT fixture's")
+    pcfg = enc.ppo
+    steps_per_update = pcfg.num_envs * pcfg.num_steps
+    update = jax.jit(ppo.make_update(pcfg, enc.env, enc.sim_params))
+    learner = jax.jit(lambda k: ppo.init(k, pcfg, enc.env, enc.sim_params))(jax.random.key(args.seed))
+    lr = np.float32(pcfg.lr)
+    print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; task {exp.sim.name}", flush=True)
+    lanes = meta["population_size"] * trainer.cfg.trials
+    print(f"neat: {meta['population_size']} genomes x {trainer.cfg.trials} start states ({lanes} lanes), the trained "
+          "4v3 population of kx/bench/data/policies/neat_4v3.npz", flush=True)
+    print(f"ppo: {pcfg.num_envs} episodes x {pcfg.num_steps} SMDP steps an update ({steps_per_update} steps), "
+          f"{pcfg.update_epochs} epochs of {pcfg.num_minibatches} minibatches, 2 x {pcfg.hidden} tanh units",
+          flush=True)
+
+    t0 = time.perf_counter()
+    key = jax.random.key(args.seed + 1)
+    learner, m = update(learner, key, lr)
+    jax.block_until_ready(learner)
+    t_compile = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    returns = []
+    for u in range(args.ppo_warmup):
+        learner, m = update(learner, jax.random.fold_in(key, u), lr)
+        if int(m["episodes"]):
+            returns.append(float(m["return_sum"]) / int(m["episodes"]))
+    jax.block_until_ready(learner)
+    t_warm = time.perf_counter() - t0
+    print(f"ppo: first update {t_compile:.1f} s (compilation included); {args.ppo_warmup} warm-up updates "
+          f"{t_warm:.1f} s, the last ones' training return {np.mean(returns[-10:]) if returns else float('nan'):.3f}",
+          flush=True)
+
+    rollout = jax.jit(ppo.make_rollout(pcfg, enc.env, enc.sim_params))
+    jax.block_until_ready(rollout(learner, key))
+    state = {"learner": learner, "n": 0}
+
+    def ppo_sample(seconds: float, learn: bool):
+        dt = steps = iterations = 0
+        while dt < seconds or steps == 0:
+            k = jax.random.fold_in(key, 10_000 + state["n"])
+            state["n"] += 1
+            t = time.perf_counter()
+            if learn:
+                state["learner"], m = update(state["learner"], k, lr)
+            else:
+                (_, _, _, _, it), _ = rollout(state["learner"], k)
+                m = {"iterations": it}
+            iterations += int(jax.block_until_ready(m["iterations"]))
+            dt += time.perf_counter() - t
+            steps += steps_per_update
+        return dt, steps, iterations
+
+    neat_work()  # compiles the evaluator's widths
+    samples = {"ppo": [], "rollout": [], "neat": []}
+    for _ in range(args.repeats):
+        samples["ppo"].append(ppo_sample(args.sample_seconds, True))
+        samples["rollout"].append(ppo_sample(args.sample_seconds, False))
+        dt, live, _ = _sample(neat_work, args.sample_seconds)
+        samples["neat"].append((dt, live, live))
+    rate = {k: [s / dt for dt, s, _ in v] for k, v in samples.items()}
+    med = {k: float(np.median(v)) for k, v in rate.items()}
+    per_step = {k: sum(it for _, _, it in v) / sum(s for _, s, _ in v) for k, v in samples.items()}
+    ratio = float(np.median([a / b for a, b in zip(rate["ppo"], rate["neat"])]))
+    spread = {k: 100 * (max(v) - min(v)) / med[k] for k, v in rate.items()}
+    print(f"each figure: the median of {args.repeats} samples taken in turn, each at least {args.sample_seconds} s")
+    print(f"neat evaluator: {med['neat']:,.0f} live steps/s (spread {spread['neat']:.0f}%)")
+    print(f"ppo rollout alone: {med['rollout']:,.0f} env steps/s (spread {spread['rollout']:.0f}%), "
+          f"{per_step['rollout']:.2f} world iterations an SMDP step")
+    print(f"ppo training: {med['ppo']:,.0f} env steps/s (spread {spread['ppo']:.0f}%; {per_step['ppo']:.2f} world "
+          f"iterations a step: {med['ppo'] * per_step['ppo']:,.0f} iterations/s); learning takes "
+          f"{100 * (1 - med['ppo'] / med['rollout']):.0f}% of its time")
+    print(f"ppo: {med['ppo']:.0f} env steps/s (ratio {ratio:.3f} vs neat evaluator)")
