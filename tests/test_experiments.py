@@ -210,8 +210,8 @@ def test_the_pooled_verdicts_follow_the_test_over_the_whole_family():
 def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their_own_source():
     specs = t3.plan(runs=20)
     sources = [s for s in specs if s.phase == "source"]
-    # 20 x (NEAT, HyperNEAT: 2 sources + 3 targets x 4 setups; CMA-ES: 1 source + 3 targets x 2 setups)
-    assert len(specs) == 20 * (2 * 14 + 7) and len(sources) == 20 * 5
+    # 20 x (NEAT, HyperNEAT: 2 sources + 3 targets x 4 setups; CMA-ES, PPO: 1 source + 3 targets x 2 setups)
+    assert len(specs) == 20 * (2 * 14 + 2 * 7) and len(sources) == 20 * 6
     seeds = [t3.run_seed(0, *s.key) for s in specs]
     assert len(set(seeds)) == len(seeds)
     assert not set(seeds) & {t3.run_seed(1, *s.key) for s in specs}  # another protocol seed: other runs
@@ -592,5 +592,52 @@ def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mea
     # per run index: NEAT 2 sources (fitness, hybrid) and 3 targets x 4 setups, HyperNEAT the same,
     # CMA-ES 1 source and 3 x 2 targets; HyperNEAT's 6v4 costed at its targets' mean (50)
     assert seconds == 2 * 10 + 12 * 20 + 2 * 30 + 4 * 40 + 4 * 60 + 4 * 50 + 5
-    assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target"}
-    assert "left out, with no runs here: CMA-ES target" in report.full_protocol_estimate(rows, runs=1)
+    assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target", "PPO source", "PPO target"}
+    assert ("left out, with no runs here: CMA-ES target, PPO source, PPO target"
+            in report.full_protocol_estimate(rows, runs=1))
+
+
+def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_path):
+    """A folder whose design predates a secondary claim (PPO's transfer) gains it while the folder has no run
+    of its cells (it is still fixed before its runs); with such a run, or with any other difference, the
+    folder is refused."""
+    protocol = t3.Protocol(seed=3, test_trials=4, overrides=SMALL)
+    ppo_claim = "ppo/fitness > ppo/none"
+    older = design.design()
+    assert older[design.SECONDARY_KEY][-1] == ppo_claim
+    older[design.SECONDARY_KEY] = older[design.SECONDARY_KEY][:-1]
+    out = tmp_path / "t3"
+    out.mkdir()
+    (out / "protocol.json").write_text(json.dumps({**protocol.to_json(), "design": older}))
+    lines = []
+    design.check_folder(out, protocol, ("3v2",), lines.append)
+    assert json.loads((out / "protocol.json").read_text())["design"] == design.design()
+    assert any(f"the exploratory claims {ppo_claim} (no run of theirs yet)" in ln for ln in lines), lines
+    # a run of one of its cells exists: the claim would not be fixed before its runs
+    (out / "protocol.json").write_text(json.dumps({**protocol.to_json(), "design": older}))
+    csvfile.write(out / "results.csv", t3.FIELDS, [{f: "" for f in t3.FIELDS} | {
+        "method": "ppo", "setup": "none", "phase": "target", "target": "4v3", "run": "0"}])
+    with pytest.raises(t3.RunError, match=r"design: the statistical design recorded before the runs differs .*"
+                                          r"secondary \(exploratory\)"):
+        design.check_folder(out, protocol, ("3v2",), lines.append)
+    # a primary claim missing is never gained
+    (out / "results.csv").unlink()
+    primary_cut = dict(older, primary=older["primary"][:-1])
+    (out / "protocol.json").write_text(json.dumps({**protocol.to_json(), "design": primary_cut}))
+    with pytest.raises(t3.RunError, match=r"differs from this code's \(primary, secondary \(exploratory\)\)"):
+        design.check_folder(out, protocol, ("3v2",), lines.append)
+
+
+def test_the_protocols_ppo_runs_learn_from_neats_episodes(tmp_path):
+    """PPO's runs (a population of one network; the protocol's population_size override is not theirs) have
+    NEAT's generations, each of NEAT's population x trials training episodes, and the learning rate
+    annealed over the run's budget; their results rows count those episodes, source and target alike."""
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=3, overrides=SMALL)
+    for phase, setup, task, gens in (("source", "fitness", "3v2", 2), ("target", "fitness", "4v3", 3)):
+        ppo = t3.config(protocol, t3.RunSpec("ppo", setup, phase, task, 0), tmp_path)
+        neat = t3.config(protocol, t3.RunSpec("neat", setup, phase, task, 0), tmp_path)
+        assert (ppo.population_size, ppo.generations, ppo.ppo.episodes_per_generation) == (1, gens, 12 * 2)
+        assert ppo.ppo.anneal_episodes == gens * 24 and t3.episodes(ppo) == t3.episodes(neat) == gens * 24
+    row = t3.planned(protocol, t3.RunSpec("ppo", "fitness", "target", "4v3", 0), tmp_path)
+    assert (row["episodes"], row["source_episodes"], row["population"]) == (72, 48, 1)
+    assert t3.METHOD_SETUPS["ppo"] == ("none", "fitness")

@@ -126,10 +126,11 @@ class Encoding(abc.ABC):
             self._policy = self.policy_for(self.sim)
         return self._policy
 
-    def episodes_per_generation(self) -> int:
-        """The episodes a generation learns from (its budget): by default the population's ``population_size
-        x trials`` evaluations."""
-        return self.population_size * self.cfg.trials
+    @classmethod
+    def episodes_per_generation(cls, cfg: ml_collections.ConfigDict) -> int:
+        """The episodes a generation of a run of ``cfg`` learns from (its budget): by default the
+        population's ``population_size x trials`` evaluations."""
+        return cfg.population_size * cfg.trials
 
     def individual(self, population: Any, i) -> Any:
         """Genotype ``i`` of ``population``."""

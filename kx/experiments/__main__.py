@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     t = sub.add_parser("table3", help="the paper's protocol: sources, targets, both measures, results.csv, report")
     t.add_argument("--out", required=True, help="the protocol's folder (results.csv, report.md, runs/)")
     t.add_argument("--runs", type=int, default=20, help="runs per cell (default 20)")
-    t.add_argument("--methods", type=_list, default=("neat", "hyperneat", "cma_es"))
+    t.add_argument("--methods", type=_list, default=("neat", "hyperneat", "cma_es", "ppo"))
     t.add_argument("--targets", type=_list, default=("4v3", "5v3", "6v4"))
     t.add_argument("--setups", type=_list, default=("none", "fitness", "novelty", "none_novelty"))
     t.add_argument("--seed", type=int, default=0, help="the protocol seed (every run's seed and the test states)")

@@ -30,6 +30,7 @@ any compute, a folder whose states this code would not reproduce.
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import hashlib
 import json
@@ -48,7 +49,7 @@ POWER_RUNS = (5, 10, 15, 20, 25, 30, 35, 40, 50, 60, 80, 100)
 #: the measures, each its own families
 MEASURES = ("max_fitness", "test_fitness")
 #: the methods whose shipped configs (configs/<method>_<task>.py) the protocol runs
-METHOD_CONFIGS = ("neat", "hyperneat", "cma_es")
+METHOD_CONFIGS = ("neat", "hyperneat", "cma_es", "ppo")
 #: runs a cell the protocol aims at, and up to how many a cell may be extended where power asks for it
 RUNS_PER_CELL, EXTEND_UP_TO = 20, 35
 
@@ -79,6 +80,7 @@ SECONDARY = (
       for m in ("neat", "hyperneat")),
     Claim("secondary", "hyperneat", ("hyperneat", "none_novelty"), ("neat", "none_novelty")),
     Claim("secondary", "transfer", ("cma_es", "fitness"), ("cma_es", "none")),
+    Claim("secondary", "transfer", ("ppo", "fitness"), ("ppo", "none")),
 )
 CLAIMS = PRIMARY + SECONDARY
 #: the paper's claims, as the report words them
@@ -179,10 +181,42 @@ def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] 
                                f"were measured on (tasks {', '.join(bad) or 'all'}): a run measured now could not "
                                "be compared with them; run the protocol in a new folder")
         elif {k: v for k, v in have[key].items() if k != "text"} != {k: v for k, v in value.items() if k != "text"}:
-            diff = sorted(k for k in set(have[key]) | set(value) if k != "text" and have[key].get(k) != value.get(k))
-            raise RunError(f"{path}: design: the statistical design recorded before the runs differs from this "
-                           f"code's ({', '.join(diff)}); a design is fixed before the runs: change it in a new "
-                           "folder")
+            gained = _secondary_gained(have[key], value, pathlib.Path(out))
+            if gained is None:
+                diff = sorted(k for k in set(have[key]) | set(value)
+                              if k != "text" and have[key].get(k) != value.get(k))
+                raise RunError(f"{path}: design: the statistical design recorded before the runs differs from this "
+                               f"code's ({', '.join(diff)}); a design is fixed before the runs: change it in a new "
+                               "folder")
+            have[key] = value
+            added.append(f"the exploratory claims {', '.join(gained)} (no run of theirs yet)")
     if added:
         run_outputs.write_json(path, have)
         log(f"kx table3: {path.name} gains {' and '.join(added)} (recorded from now on)")
+
+
+SECONDARY_KEY = "secondary (exploratory)"
+
+
+def _secondary_gained(have: dict, want: dict, out: pathlib.Path) -> list[str] | None:
+    """The claims this code's design adds to a folder's recorded one, when that is its only difference: the
+    same parameters and primary family, the recorded secondary claims kept in order, and the new ones about
+    cells (method, setup) of which the folder has no run yet, so that they too are fixed before their runs
+    (the exploratory family's Holm correction then counts them). ``None`` otherwise."""
+    same = {k: v for k, v in have.items() if k not in ("text", SECONDARY_KEY)} == {
+        k: v for k, v in want.items() if k not in ("text", SECONDARY_KEY)}
+    old, new = list(have.get(SECONDARY_KEY, [])), list(want.get(SECONDARY_KEY, []))
+    if not same or new[:len(old)] != old or len(new) == len(old):
+        return None
+    gained = new[len(old):]
+    results = out / "results.csv"
+    cells = set()
+    if results.is_file():
+        with results.open(newline="") as f:
+            cells = {(r["method"], r["setup"]) for r in csv.DictReader(f)}
+    by_key = {c.key: c for c in SECONDARY}
+    for key in gained:
+        claim = by_key.get(key)
+        if claim is None or claim.a in cells or claim.b in cells:
+            return None
+    return gained

@@ -27,7 +27,7 @@ PAPER = {
 MEASURES = {"max_fitness": "the paper's measure: the maximum over the run of the generation's best 30-trial "
                            "training fitness",
             "test_fitness": "the run's validated champion on the protocol's test states of the target"}
-METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES"}
+METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES", "ppo": "PPO"}
 ALPHA = design.ALPHA
 #: what could explain where kx's runs and the paper's differ (the report's last section)
 DIFFERENCES = [
@@ -394,8 +394,8 @@ def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
     """:func:`full_protocol_seconds` as the report's sentence."""
     total, borrowed, missing = full_protocol_seconds(rows, runs)
     text = (f"The full protocol ({len(t3.plan(runs=runs))} runs: {runs} a cell, targets {', '.join(t3.TARGETS)}, "
-            f"every setup, CMA-ES's two) at these mean wall times per run: **{total / 3600:.1f} hours** one after "
-            "another on this machine")
+            f"every setup, CMA-ES's and PPO's two) at these mean wall times per run: **{total / 3600:.1f} hours** "
+            "one after another on this machine")
     if borrowed:
         text += (f"; a method's targets with no runs of it here ({', '.join(sorted(borrowed, key=t3.TARGETS.index))}"
                  ") costed at its mean over the targets it has runs in (not measured: their teams and episodes "

@@ -10,7 +10,8 @@ For each method and run index ``i``:
   novelty transfer (seeded with hybrid source ``i``, the hybrid in the target too); and, beyond the
   paper, no transfer with the hybrid. CMA-ES (:data:`METHOD_SETUPS`) has no transfer and the transfer of
   its source's mean and step size, with generations scaled so that its budget in evaluations equals
-  NEAT's.
+  NEAT's; PPO has no transfer and the transfer of its source's final weights, NEAT's generations of
+  NEAT's episodes each (``ppo.episodes_per_generation`` = NEAT's population x trials).
 
 Every run has its own seed (:func:`run_seed`), its own run directory under ``DIR/runs`` (resumed from its
 checkpoint if the protocol was killed), and, once finished, one row in ``DIR/results.csv``
@@ -47,7 +48,7 @@ from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile, design, measure
 
-METHODS = ("neat", "hyperneat", "cma_es")
+METHODS = ("neat", "hyperneat", "cma_es", "ppo")
 SOURCE_TASK = "3v2"
 TARGETS = ("4v3", "5v3", "6v4")
 
@@ -65,8 +66,9 @@ SETUPS = {
     "novelty": Setup("Fitness + NS transfer", "hybrid", "hybrid"),
     "none_novelty": Setup("No transfer, fitness + NS", None, "hybrid"),  # beyond the paper
 }
-#: the setups each method runs (CMA-ES: the standard-optimiser reference, fitness only)
-METHOD_SETUPS = {"neat": tuple(SETUPS), "hyperneat": tuple(SETUPS), "cma_es": ("none", "fitness")}
+#: the setups each method runs (CMA-ES, the standard optimiser, and PPO, the gradient-based learner: fitness only)
+METHOD_SETUPS = {"neat": tuple(SETUPS), "hyperneat": tuple(SETUPS), "cma_es": ("none", "fitness"),
+                 "ppo": ("none", "fitness")}
 
 #: results.csv's columns, one row per finished run (source runs too: phase "source", target "3v2")
 FIELDS = ("method", "setup", "phase", "target", "run", "seed", "source_seed", "objective", "population", "trials",
@@ -176,20 +178,39 @@ def _reference_population(protocol: Protocol) -> int:
 def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collections.ConfigDict:
     """The config of one run, source or target: the method's shipped config of the run's task, the protocol's
     overrides, the run's seed (:func:`run_seed`), objective and generations (CMA-ES's scaled to NEAT's
-    evaluations), no GIF, and for a transfer run its source's run directory under ``out``
-    (:func:`run_dir`). The one config builder of the experiments' runs: ``python -m kx.bench transfer``
-    builds its sources and targets with it too."""
+    evaluations; PPO's NEAT's, each of NEAT's episodes), no GIF, and for a transfer run its source's run
+    directory under ``out`` (:func:`run_dir`). The one config builder of the experiments' runs: ``python -m
+    kx.bench transfer`` builds its sources and targets with it too."""
     generations = protocol.source_generations if spec.phase == "source" else protocol.target_generations
     objective = spec.setup if spec.phase == "source" else SETUPS[spec.setup].objective
     src = source_of(spec)
     over = [*protocol.overrides, "gif=false", f"objective={objective}", f"seed={run_seed(protocol.seed, *spec.key)}"]
     if src is not None:
         over.append(f"transfer.source={run_dir(out, src)}")
-    cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"{spec.method}_{spec.target}.py", over)
-    budget = generations * _reference_population(protocol)
-    cfg.generations = max(1, math.ceil(budget / cfg.population_size))
+    if spec.method in ONE_NETWORK:  # a population of one: NEAT's generations, each NEAT's episodes
+        over = [o for o in over if not o.startswith("population_size=")]
+        cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"{spec.method}_{spec.target}.py", over)
+        ref = cfg_lib.load(cfg_lib.CONFIG_DIR / "neat_3v2.py", list(protocol.overrides))
+        cfg.generations = generations
+        cfg.ppo.episodes_per_generation = ref.population_size * ref.trials
+        cfg.ppo.anneal_episodes = generations * cfg.ppo.episodes_per_generation
+    else:
+        cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"{spec.method}_{spec.target}.py", over)
+        budget = generations * _reference_population(protocol)
+        cfg.generations = max(1, math.ceil(budget / cfg.population_size))
     cfg_lib.validate(cfg)
     return cfg
+
+
+#: the methods that train one network (PPO): the protocol's ``population_size`` override is not theirs
+ONE_NETWORK = ("ppo",)
+
+
+def episodes(cfg: ml_collections.ConfigDict) -> int:
+    """The episodes a run of ``cfg`` learns from: its generations x its method's episodes a generation."""
+    from kx.evolve import registry
+
+    return cfg.generations * registry.get(cfg.method).episodes_per_generation(cfg)
 
 
 # ---------------------------------------------------------------------------------------------- results.csv
@@ -240,10 +261,10 @@ def planned(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> dict:
     src_evals = 0
     if src is not None:
         scfg = config(protocol, src, out)
-        src_evals = scfg.generations * scfg.population_size * scfg.trials
+        src_evals = episodes(scfg)
     return {"seed": cfg.seed, "source_seed": "" if src is None else run_seed(protocol.seed, *src.key),
             "objective": cfg.objective, "population": cfg.population_size, "trials": cfg.trials,
-            "generations": cfg.generations, "episodes": cfg.generations * cfg.population_size * cfg.trials,
+            "generations": cfg.generations, "episodes": episodes(cfg),
             "source_episodes": src_evals, "test_trials": protocol.test_trials, "protocol_seed": protocol.seed}
 
 

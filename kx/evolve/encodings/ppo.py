@@ -131,8 +131,11 @@ class PPOEncoding(Encoding):
         self.anneal = int(c.anneal_episodes)
         self.env = gym.KeepAway(sim)
 
-    def episodes_per_generation(self) -> int:
-        return self.block
+    @classmethod
+    def episodes_per_generation(cls, cfg) -> int:
+        """The training episodes of a generation (``ppo.episodes_per_generation``); the greedy ones on the
+        generation's training and validation states are not learned from."""
+        return int(cfg.ppo.episodes_per_generation)
 
     def init(self, key):
         return _init_program(self.ppo, self.sim, self.sim_params)(key, None)
