@@ -1,5 +1,5 @@
 """``python -m kx.bench policies``: its committed trained populations load as the current encodings' genomes,
-and (slow) the benchmark ends with its two machine-readable lines."""
+and (slow) the benchmark ends with its two machine-readable lines; so does ``python -m kx.bench ppo``."""
 
 import re
 import subprocess
@@ -33,3 +33,12 @@ def test_last_lines(tmp_path):
                          capture_output=True, text=True, check=True).stdout.strip().splitlines()
     assert re.fullmatch(r"neat: \d+ ns per live step \(ratio \d+\.\d\d vs heuristic\)", out[-2]), out[-2]
     assert re.fullmatch(r"policies: \d+ ns per live step hyperneat \(ratio \d+\.\d\d vs heuristic\)", out[-1]), out[-1]
+
+
+@pytest.mark.slow  # ~40 s: compiles PPO's update and NEAT's evaluator
+def test_the_ppo_benchmark_ends_with_its_machine_readable_line():
+    out = subprocess.run([sys.executable, "-m", "kx.bench", "ppo", "--ppo-warmup", "2", "--repeats", "1",
+                          "--sample-seconds", "0"], capture_output=True, text=True, check=True).stdout.strip()
+    last = out.splitlines()[-1]
+    assert re.fullmatch(r"ppo: \d+ env steps/s \(ratio \d+\.\d{3} vs neat evaluator\)", last), last
+    assert "world iterations a step" in out and "neat evaluator:" in out

@@ -75,7 +75,7 @@ def load_fixture(method: str):
     return run_lib.Trainer(cfg), population, meta
 
 
-def _work(policy, params, starts, world, key):
+def evaluation_work(policy, params, starts, world, key):
     """One evaluation as a sample's unit of work: returns ``(seconds, live steps, executed steps, mean
     fitness)``."""
     import jax
@@ -94,7 +94,7 @@ def _work(policy, params, starts, world, key):
     return work
 
 
-def _sample(work, seconds: float) -> tuple[float, int, int]:
+def sample(work, seconds: float) -> tuple[float, int, int]:
     """Evaluations repeated for at least ``seconds``: ``(seconds, live steps, evaluations)``."""
     dt = live = n = 0
     while dt < seconds or n == 0:
@@ -218,7 +218,7 @@ def run(args) -> None:
 
     works, first = {}, {}
     for name, (policy, params) in policies.items():
-        work = _work(policy, params, starts, world, keys.eval)
+        work = evaluation_work(policy, params, starts, world, keys.eval)
         t0 = time.perf_counter()
         dt, live, executed, fitness = work()  # compiles every width
         first[name] = (time.perf_counter() - t0, live, executed, fitness)
@@ -229,7 +229,7 @@ def run(args) -> None:
     samples = {k: [] for k in works}
     for _ in range(reps):
         for name, work in works.items():
-            samples[name].append(_sample(work, sec))
+            samples[name].append(sample(work, sec))
     per = {k: [dt / live * 1e9 for dt, live, _ in v] for k, v in samples.items()}
     med = {k: float(np.median(v)) for k, v in per.items()}
     ratio = {k: float(np.median([a / b for a, b in zip(v, per["heuristic"])])) for k, v in per.items()}

@@ -37,7 +37,7 @@ def run(args) -> None:
     import numpy as np
 
     from kx import ppo
-    from kx.bench.policies import _sample, _work, load_fixture
+    from kx.bench.policies import evaluation_work, load_fixture, sample
     from kx.evolve import config as cfg_lib
     from kx.evolve import streams
     from kx.sim import env
@@ -46,7 +46,7 @@ def run(args) -> None:
     exp = trainer.exp
     keys = streams.training(meta["seed"], meta["generation"])
     starts = env.reset_batch(keys.starts, trainer.cfg.trials, exp.sim_params, exp.sim)
-    neat_work = _work(trainer.encoding.policy, trainer.encoding.policy_params(population), starts,
+    neat_work = evaluation_work(trainer.encoding.policy, trainer.encoding.policy_params(population), starts,
                       (exp.sim_params, exp.sim), keys.eval)
 
     cfg = cfg_lib.load("configs/ppo_4v3.py", ["gif=false"])
@@ -108,7 +108,7 @@ def run(args) -> None:
     for _ in range(args.repeats):
         samples["ppo"].append(ppo_sample(args.sample_seconds, True))
         samples["rollout"].append(ppo_sample(args.sample_seconds, False))
-        dt, live, _ = _sample(neat_work, args.sample_seconds)
+        dt, live, _ = sample(neat_work, args.sample_seconds)
         samples["neat"].append((dt, live, live))
     rate = {k: [s / dt for dt, s, _ in v] for k, v in samples.items()}
     med = {k: float(np.median(v)) for k, v in rate.items()}
