@@ -11,10 +11,10 @@ import pytest
 from test_train import (  # noqa: F401  (the tests, and the session cache of trained runs they use)
     _runs,
     sigkill_then_resume,
-    test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task,
-    test_existing_run_directories_are_never_overwritten_unasked,
     test_run_directory_holds_config_metrics_plot_checkpoints_and_gif,
 )
+from test_train import test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task as _evaluate
+from test_train import test_existing_run_directories_are_never_overwritten_unasked as _never_overwritten
 
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
@@ -35,6 +35,16 @@ def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(tr
     counters) comes back from the checkpoint: the resumed run's checkpoints and metrics are the
     uninterrupted run's, bit for bit."""
     sigkill_then_resume(trained, tmp_path)
+
+
+@pytest.mark.slow  # the run loop's own logic, which the default suite runs on NEAT's run
+def test_existing_run_directories_are_never_overwritten_unasked(capsys, trained, tmp_path):
+    _never_overwritten(capsys, trained, tmp_path)
+
+
+@pytest.mark.slow  # kx.evaluate's own logic, which the default suite runs on NEAT's run
+def test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task(capsys, trained):
+    _evaluate(capsys, trained)
 
 
 def _same(a, b) -> bool:
