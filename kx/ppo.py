@@ -65,12 +65,35 @@ class ActorCritic(nn.Module):
 
     @nn.compact
     def __call__(self, obs):
-        def mlp(x, out, scale):
-            for _ in range(2):
-                x = nn.tanh(nn.Dense(self.hidden, kernel_init=nn.initializers.orthogonal(np.sqrt(2)))(x))
-            return nn.Dense(out, kernel_init=nn.initializers.orthogonal(scale))(x)
+        def mlp(x, out, scale, name):
+            for i in range(2):
+                x = nn.tanh(nn.Dense(self.hidden, kernel_init=nn.initializers.orthogonal(np.sqrt(2)),
+                                     name=f"{name}_{i}")(x))
+            return nn.Dense(out, kernel_init=nn.initializers.orthogonal(scale), name=f"{name}_{2}")(x)
 
-        return mlp(obs, self.n_actions, 0.01), mlp(obs, 1, 1.0)[..., 0]
+        return mlp(obs, self.n_actions, 0.01, "actor"), mlp(obs, 1, 1.0, "critic")[..., 0]
+
+
+#: the actor's layers in ``params["params"]``, input first (:class:`ActorCritic`)
+ACTOR_LAYERS = ("actor_0", "actor_1", "actor_2")
+
+
+def actor_logits_batch_last(params, x):
+    """The actor's logits ``[3, *B]`` of observations ``x [13, *B]`` (batch-last, as the evaluator has them),
+    computed as elementwise multiply-adds in a fixed order: ``params`` holds one network (its leaves as
+    :class:`ActorCritic` has them, broadcast over every lane) or one per lane (each leaf with the lanes'
+    axes ``*B`` last), and a lane's logits are bit for bit the same either way, whatever the other lanes."""
+    nb = x.ndim - 1
+    for k, name in enumerate(ACTOR_LAYERS):
+        layer = params["params"][name]
+        w, b = layer["kernel"], layer["bias"]
+        if w.ndim == 2:  # one network for every lane: trailing axes to broadcast over the lanes
+            w, b = w.reshape(w.shape + (1,) * nb), b.reshape(b.shape + (1,) * nb)
+        out = b
+        for i in range(x.shape[0]):  # unrolled: the sums in a fixed order
+            out = out + x[i][None] * w[i]
+        x = jnp.tanh(out) if k < len(ACTOR_LAYERS) - 1 else out
+    return x
 
 
 class Transition(NamedTuple):

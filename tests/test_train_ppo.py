@@ -76,3 +76,19 @@ def test_a_transferred_run_starts_from_the_source_weights_with_a_fresh_optimiser
     for extra, why in ((["transfer.seeding=half"], "seeding 'half'"), (["ppo.hidden=8"], "they do not fit")):
         with pytest.raises(ConfigError, match=why):
             run_lib.Trainer(target(*extra)).init()
+
+
+def test_a_batched_group_of_ppo_runs_writes_what_each_run_writes_alone(tmp_path):
+    """``kx.train --seeds`` and the protocol's groups: each run's blocks of updates run alone, and the
+    group's evaluations (one table of the runs' networks, each lane gathering its own) decide as each run's
+    network does alone, so every metrics row and checkpoint is the same."""
+    from test_group import assert_same_run
+
+    from kx.evolve import group as group_lib
+
+    cfgs = [cfg_lib.load(REPO / "configs" / "ppo_3v2.py", [*TINY, "generations=2", "checkpoint_every=1",
+                                                           f"seed={s}"]) for s in (0, 5)]
+    group_lib.train_group(cfgs, [tmp_path / "group" / f"seed{c.seed}" for c in cfgs], log=lambda s: None)
+    for c in cfgs:
+        run_lib.train(c, tmp_path / "alone" / f"seed{c.seed}", log=lambda s: None)
+        assert_same_run(tmp_path / "group" / f"seed{c.seed}", tmp_path / "alone" / f"seed{c.seed}")

@@ -47,22 +47,22 @@ FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig) if f.name not i
 @functools.lru_cache(maxsize=None)
 def greedy_policy(sim: KeepAwayConfig, hidden: int) -> Policy:
     """The actor's greedy decision as a shared-table policy of the evaluator: ``params.table`` the flax
-    parameters of G networks (leading axis G), ``params.index [*B]`` each lane's. With one network (a
-    generation's, the champion) every lane applies it as one matrix product; with several, each lane
-    gathers its own."""
-    net = ppo.ActorCritic(hidden=hidden)
+    parameters of G networks (leading axis G), ``params.index [*B]`` each lane's. With one network (a run's
+    generation, its champion) every lane applies it; with several (a batched group's runs) each lane
+    gathers its own. Either way a lane's logits are the same elementwise sums
+    (:func:`kx.ppo.actor_logits_batch_last`), so that a run's evaluation in a group is bit for bit its
+    evaluation alone."""
 
     def apply(params, state, key):
         x = observe.fixed_obs(state, sim)  # [13, *B]
-        batch = x.shape[1:]
-        flat = x.reshape(x.shape[0], -1).T  # [M, 13]
         g = jax.tree.leaves(params.table)[0].shape[0]
         if g == 1:
-            logits, _ = net.apply(jax.tree.map(lambda a: a[0], params.table), flat)
+            net = jax.tree.map(lambda a: a[0], params.table)
         else:
-            rows = jax.tree.map(lambda a: a[params.index.reshape(-1)], params.table)
-            logits, _ = jax.vmap(net.apply)(rows, flat)
-        return observe.decode_ranked(logits.T.reshape((logits.shape[-1],) + batch), state, sim)
+            nd = params.index.ndim
+            net = jax.tree.map(lambda a: jnp.moveaxis(a[params.index], tuple(range(nd)), tuple(range(-nd, 0))),
+                               params.table)
+        return observe.decode_ranked(ppo.actor_logits_batch_last(net, x), state, sim)
 
     return Policy(f"ppo-h{hidden}", apply, shared=True)
 
