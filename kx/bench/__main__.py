@@ -85,6 +85,8 @@ def main(argv=None) -> None:
     p.add_argument("--no-neat-python", action="store_true", help="neat_xor: skip the neat-python baseline")
     p.add_argument("--seeds", type=int, default=None,
                    help="learning, transfer: seeds 0..N-1 of each learner (default 10 for learning, 5 for transfer)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="learning: the first seed (seeds FIRST..FIRST+N-1; to split the seeds over processes)")
     p.add_argument("--objective", default="fitness", help="transfer: the objective of the source and target runs")
     p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
     p.add_argument("--methods", default="NEAT,HyperNEAT,CMA-ES,PPO",

@@ -62,7 +62,7 @@ def run(args) -> None:
     from kx.sim.policies import BASELINES
     from kx.sim.types import KeepAwayConfig
 
-    seeds = list(range(args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py",
                "PPO": "configs/ppo_3v2.py"}
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
