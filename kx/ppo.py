@@ -6,7 +6,8 @@ teammate, to the second nearest) and a critic; flax for the network, optax for t
 gradient clipping, the learning rate annealed linearly to 0 if asked). The objective is PPO's clipped
 surrogate with generalised advantage estimation (Schulman et al. 2017; GAE: Schulman et al. 2016) over
 SMDP steps, a step from one decision of the holder to the next (its reward the share of the episode
-survived in between). Evaluated greedily (the argmax of the logits), as NEAT's networks decide.
+survived in between, its discount ``gamma`` to the power of the iterations it spanned). Evaluated
+greedily (the argmax of the logits), as NEAT's networks decide.
 
 :func:`make_train` is the whole training as one program of a key (``cfg.updates`` updates); the run loop's
 method ``ppo`` (:mod:`kx.evolve.encodings.ppo`) trains in blocks of episodes instead (:func:`make_block`),
@@ -36,7 +37,7 @@ class PPOConfig:
     updates: int = 100  # updates of the whole training
     update_epochs: int = 4
     num_minibatches: int = 4
-    gamma: float = 0.99
+    gamma: float = 0.99  # per iteration of the world: an SMDP step of tau iterations is discounted by gamma ** tau
     gae_lambda: float = 0.95
     clip_eps: float = 0.2
     ent_coef: float = 0.01
@@ -61,7 +62,6 @@ class PPOConfig:
 class ActorCritic(nn.Module):
     n_actions: int = gym.N_ACTIONS
     hidden: int = 64
-    resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
 
     @nn.compact
     def __call__(self, obs):
@@ -103,20 +103,29 @@ class Transition(NamedTuple):
     value: jax.Array
     reward: jax.Array
     done: jax.Array
+    iterations: jax.Array  # the world's iterations the SMDP step spanned (its discount is gamma ** iterations)
 
 
-def gae(rewards, values, dones, last_value, gamma: float, lam: float):
+def gae(rewards, values, dones, last_value, gamma: float, lam: float, durations=None):
     """Advantages and value targets ``[T, N]`` of a rollout: ``dones[t]`` ends the episode after step ``t``
-    (no bootstrap across it), ``last_value [N]`` the critic after the last step."""
+    (no bootstrap across it), ``last_value [N]`` the critic after the last step. SMDP steps
+    (``durations [T, N]``, the world's iterations each spanned; default 1) are discounted by ``gamma **
+    durations``: ``delta_t = r_t + gamma^tau_t V(s_t+1) - V(s_t)``, ``A_t = delta_t + gamma^tau_t lam
+    A_t+1`` (Bradtke and Duff 1995; Sutton, Precup and Singh 1999), so that a pass of ten iterations is
+    discounted as ten iterations of holding are."""
+    if durations is None:
+        durations = jnp.ones_like(rewards)
+    discounts = jnp.asarray(gamma, jnp.float32) ** durations.astype(jnp.float32)
+
     def back(carry, x):
         next_adv, next_value = carry
-        r, v, d = x
-        delta = r + gamma * next_value * (1.0 - d) - v
-        adv = delta + gamma * lam * (1.0 - d) * next_adv
+        r, v, d, g = x
+        delta = r + g * next_value * (1.0 - d) - v
+        adv = delta + g * lam * (1.0 - d) * next_adv
         return (adv, v), adv
 
-    _, adv = jax.lax.scan(back, (jnp.zeros_like(last_value), last_value), (rewards, values, dones.astype(jnp.float32)),
-                          reverse=True)
+    _, adv = jax.lax.scan(back, (jnp.zeros_like(last_value), last_value),
+                          (rewards, values, dones.astype(jnp.float32), discounts), reverse=True)
     return adv, adv + values
 
 
@@ -148,6 +157,7 @@ class Learner(NamedTuple):
     decisions: jax.Array  # int32: SMDP steps played
     episodes: jax.Array  # int32: episodes ended
     blocks: jax.Array  # int32: blocks of episodes done (kx.train's generations)
+    last_block: dict  # the last block's metrics (make_block; zeros before the first)
 
 
 def optimiser(cfg: PPOConfig) -> optax.GradientTransformation:
@@ -166,11 +176,17 @@ def init(key: jax.Array, cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAway
     zero = jnp.zeros((), jnp.int32)
     return Learner(params=params, opt_state=optimiser(cfg).init(params), env=env_state, obs=obs,
                    returns=jnp.zeros((cfg.num_envs,), jnp.float32), updates=zero, decisions=zero, episodes=zero,
-                   blocks=zero)
+                   blocks=zero, last_block=_zero_metrics())
 
 
 #: the metrics of one update (:func:`make_update`), summed over a block's updates by :func:`make_block`
 UPDATE_METRICS = ("policy_loss", "value_loss", "entropy", "return_sum", "episodes", "shared_starts")
+_INT_METRICS = ("episodes", "shared_starts", "updates")
+
+
+def _zero_metrics() -> dict:
+    """A block's metrics (:data:`UPDATE_METRICS` summed, and ``updates``) at zero."""
+    return {k: jnp.zeros((), jnp.int32 if k in _INT_METRICS else jnp.float32) for k in (*UPDATE_METRICS, "updates")}
 
 
 def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
@@ -191,7 +207,7 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
         nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
         carry = (nxt, ended + done.sum(dtype=jnp.int32), return_sum + jnp.where(done, returns, 0.0).sum(),
                  shared + info["shared_starts"].astype(jnp.int32), iterations + info["iterations"].sum(dtype=jnp.int32))
-        return carry, Transition(learner.obs, action, log_prob, value, reward, done)
+        return carry, Transition(learner.obs, action, log_prob, value, reward, done, info["iterations"])
 
     def rollout(learner, key):
         zero = jnp.zeros((), jnp.int32)
@@ -218,7 +234,7 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
         (learner, ended, return_sum, shared, iterations), traj = rollout(learner, k_roll)
         _, last_value = net.apply(learner.params, learner.obs)
         adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
-                           cfg.gae_lambda)
+                           cfg.gae_lambda, traj.iterations)
 
         def epoch(carry, k):
             params, opt_state = carry
@@ -275,9 +291,10 @@ def make_train(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
 def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, block: int, anneal_episodes: int):
     """``block(learner, key) -> (learner, metrics)``: updates until the learner has ended
     ``(learner.blocks + 1) * block`` episodes in all (the last update may end a few more, which count
-    toward the next block). The learning rate falls linearly from ``cfg.lr`` to 0 over the first
-    ``anneal_episodes`` episodes (0: constant). ``metrics``: :data:`UPDATE_METRICS` summed over the
-    block's updates, and ``updates``."""
+    toward the next block; when the previous block's last update ended this block's episodes already, the
+    block runs no update). The learning rate falls linearly from ``cfg.lr`` to 0 over the first
+    ``anneal_episodes`` episodes (0: constant). ``metrics`` (also the learner's ``last_block``):
+    :data:`UPDATE_METRICS` summed over the block's updates, and ``updates``."""
     update = make_update(cfg, env, env_params)
 
     def lr_at(episodes):
@@ -287,8 +304,7 @@ def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, bl
 
     def run(learner: Learner, key: jax.Array):
         target = (learner.blocks + 1) * block
-        zero = {k: (jnp.zeros((), jnp.int32) if k in ("episodes", "shared_starts") else jnp.zeros((), jnp.float32))
-                for k in UPDATE_METRICS}
+        zero = {k: v for k, v in _zero_metrics().items() if k != "updates"}
 
         def body(carry):
             learner, sums, n, key = carry
@@ -298,7 +314,8 @@ def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, bl
 
         learner, sums, n, _ = jax.lax.while_loop(lambda c: c[0].episodes < target, body,
                                                  (learner, zero, jnp.zeros((), jnp.int32), key))
-        return learner._replace(blocks=learner.blocks + 1), dict(sums, updates=n)
+        metrics = dict(sums, updates=n)
+        return learner._replace(blocks=learner.blocks + 1, last_block=metrics), metrics
 
     return run
 

@@ -21,6 +21,21 @@ def test_gae_by_hand():
     np.testing.assert_allclose(targets[:, 0], [1.81, 1.0, 2.8], rtol=1e-6)
 
 
+def test_smdp_gae_discounts_a_step_by_the_iterations_it_spanned():
+    rewards = jnp.array([[1.0], [2.0]])
+    values = jnp.array([[0.5], [1.0]])
+    dones = jnp.array([[False], [False]])
+    tau = jnp.array([[3], [1]])  # a pass of 3 iterations, then a hold
+    adv, targets = ppo.gae(rewards, values, dones, jnp.array([4.0]), gamma=0.9, lam=0.5, durations=tau)
+    # t=1: 2 + 0.9 * 4 - 1 = 4.6; t=0: (1 + 0.729 * 1 - 0.5) + 0.729 * 0.5 * 4.6 = 2.9057
+    np.testing.assert_allclose(adv[:, 0], [2.9057, 4.6], rtol=1e-6)
+    np.testing.assert_allclose(targets[:, 0], [3.4057, 5.6], rtol=1e-6)
+    # one iteration a step: the plain GAE
+    plain, _ = ppo.gae(rewards, values, dones, jnp.array([4.0]), gamma=0.9, lam=0.5)
+    ones, _ = ppo.gae(rewards, values, dones, jnp.array([4.0]), gamma=0.9, lam=0.5, durations=jnp.ones((2, 1)))
+    np.testing.assert_array_equal(plain, ones)
+
+
 def test_the_clipped_loss_by_hand():
     net = ppo.ActorCritic(hidden=8)
     key = jax.random.key(0)
@@ -32,7 +47,7 @@ def test_the_clipped_loss_by_hand():
     old_value = value + jnp.array([0.5, -0.5, 0.1, 0.0, 0.3, -0.1])
     adv = jnp.array([1.0, -2.0, 0.5, 0.3, -0.7, 1.5])
     targets = jnp.array([0.3, -0.2, 1.0, 0.0, 0.5, 0.1])
-    batch = ppo.Transition(obs, action, old_logp, old_value, jnp.zeros(6), jnp.zeros(6, bool))
+    batch = ppo.Transition(obs, action, old_logp, old_value, jnp.zeros(6), jnp.zeros(6, bool), jnp.ones(6, jnp.int32))
     total, (pl, vl, ent) = ppo.loss(params, net.apply, batch, adv, targets, 0.2, 0.5, 0.01)
     # numpy, term by term
     lg, v = np.asarray(logits, np.float64), np.asarray(value, np.float64)

@@ -132,6 +132,12 @@ class Encoding(abc.ABC):
         population's ``population_size x trials`` evaluations."""
         return cfg.population_size * cfg.trials
 
+    def placeholder(self, key: jax.Array, learner: Any) -> Any:
+        """A genotype of the shape of this encoding's champions: the run state's champion before the first
+        generation has one (by default the first of the population ``ask`` gives)."""
+        population, _ = self.ask(key, learner)
+        return self.individual(population, 0)
+
     def individual(self, population: Any, i) -> Any:
         """Genotype ``i`` of ``population``."""
         return jax.tree.map(lambda a: a[i], population)

@@ -115,9 +115,9 @@ class Trainer:
         seed = self.cfg.seed
         if learner is None:
             learner = self.encoding.init(streams.learner_init(seed))
-        population, _ = self.encoding.ask(streams.learner_ask(seed, 0), learner)
         return RunState(learner=learner, objective=self.objective.init(self.cfg.population_size),
-                        champion=self.encoding.individual(population, 0),  # a placeholder until generation 1
+                        # a placeholder until generation 1
+                        champion=self.encoding.placeholder(streams.learner_ask(seed, 0), learner),
                         champion_validation=jnp.asarray(-jnp.inf, jnp.float32),
                         champion_generation=jnp.asarray(-1, jnp.int32), generation=jnp.asarray(0, jnp.int32),
                         best_so_far=jnp.asarray(-jnp.inf, jnp.float32), key=streams.run_key(seed))

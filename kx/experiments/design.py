@@ -201,7 +201,7 @@ SECONDARY_KEY = "secondary (exploratory)"
 def _secondary_gained(have: dict, want: dict, out: pathlib.Path) -> list[str] | None:
     """The claims this code's design adds to a folder's recorded one, when that is its only difference: the
     same parameters and primary family, the recorded secondary claims kept in order, and the new ones about
-    cells (method, setup) of which the folder has no run yet, so that they too are fixed before their runs
+    cells (method, setup) of which the folder has no target run yet, so that they too are fixed before their runs
     (the exploratory family's Holm correction then counts them). ``None`` otherwise."""
     same = {k: v for k, v in have.items() if k not in ("text", SECONDARY_KEY)} == {
         k: v for k, v in want.items() if k not in ("text", SECONDARY_KEY)}
@@ -213,7 +213,7 @@ def _secondary_gained(have: dict, want: dict, out: pathlib.Path) -> list[str] | 
     cells = set()
     if results.is_file():
         with results.open(newline="") as f:
-            cells = {(r["method"], r["setup"]) for r in csv.DictReader(f)}
+            cells = {(r["method"], r["setup"]) for r in csv.DictReader(f) if r["phase"] == "target"}
     by_key = {c.key: c for c in SECONDARY}
     for key in gained:
         claim = by_key.get(key)

@@ -3,17 +3,18 @@ with the same budget of episodes as NEAT.
 
 The learner is :mod:`kx.ppo` (flax actor-critic on NEAT's fixed layout, optax, the clipped objective with
 GAE over SMDP steps of the keep-away environment, :mod:`kx.sim.gym`). The run loop sees a *population of
-one*: each generation ``ask`` hands it the network's current weights, which play the generation's
-``trials`` training start states greedily (the argmax of the actor's logits, as NEAT's networks decide)
-for the generation's training fitness, and, as every method's generation champion, the validation
-states; ``tell`` then trains on ``ppo.episodes_per_generation`` new episodes of the sampled policy (4500
-by default: NEAT's 150 genomes x 30 trials, so that metrics rows of the two line up generation by
-generation), with the learning rate falling linearly to 0 over ``ppo.anneal_episodes`` episodes (the
-configs set it to ``generations x episodes_per_generation``; a field of its own, so that a run resumed for
-more generations computes what it computed). The greedy episodes on training and validation states are
-not learned from (NEAT's validation episodes are not either); :meth:`PPOEncoding.episodes_per_generation`
-counts the training episodes.
-The run's champion is, as for every method, the generation's weights that validated best.
+one*: each generation ``ask`` trains the network on ``ppo.episodes_per_generation`` new episodes of the
+sampled policy (4500 by default: NEAT's 150 genomes x 30 trials, so that metrics rows of the two line up
+generation by generation) and hands the run loop its new weights, which play the generation's ``trials``
+training start states greedily (the argmax of the actor's logits, as NEAT's networks decide) for the
+generation's training fitness, and, as every method's generation champion, the validation states
+(``tell`` has nothing to select). Generation ``g`` plays the weights after ``g + 1`` blocks: the last
+block is measured, the untrained network is not. The learning rate falls linearly to 0 over
+``ppo.anneal_episodes`` episodes (the configs set it to ``generations x episodes_per_generation``; a
+field of its own, so that a run resumed for more generations computes what it computed). The greedy
+episodes on training and validation states are not learned from (NEAT's validation episodes are not
+either); :meth:`PPOEncoding.episodes_per_generation` counts the training episodes. The run's champion
+is, as for every method, the generation's weights that validated best.
 
 A transferred run starts from the source's weights (``transfer.seeding = "population"``: the network the
 source's training ended with; ``"champion"``: its validated champion), with a fresh optimiser and new
@@ -40,7 +41,7 @@ from kx.sim import gym, observe
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
-#: the config fields of ``ppo``: PPOConfig's but ``updates``
+#: the config fields of ``ppo``: PPOConfig's but ``updates`` and ``anneal_lr`` (the encoding's own fields beside)
 FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig) if f.name not in ("updates", "anneal_lr"))
 
 
@@ -86,8 +87,8 @@ class PPOEncoding(Encoding):
     section = "ppo"
     layouts = ("fixed",)
     population_sizes = (1, 1)
-    # ask and the policy's parameters are copies; a batched group runs each run's block of updates alone
-    vmap_exact = frozenset({"ask", "policy_params"})
+    # tell and the policy's parameters are copies; a batched group runs each run's block of updates (ask) alone
+    vmap_exact = frozenset({"tell", "policy_params"})
     metric_fields = ("train_episodes", "train_return", "updates", "policy_loss", "value_loss", "entropy",
                      "shared_starts")
     plot_field = "train_return"
@@ -141,13 +142,23 @@ class PPOEncoding(Encoding):
         return _init_program(self.ppo, self.sim, self.sim_params)(key, None)
 
     def ask(self, key, state):
+        """Trains a block of ``episodes_per_generation`` episodes, then hands the run loop the network's new
+        weights (a population of one): generation ``g`` plays the weights after ``g + 1`` blocks, so the
+        last block is measured too, and the untrained network never is."""
+        state, _ = _block_program(self.ppo, self.sim, self.sim_params, self.block, self.anneal)(state, key)
         return _as_population(state.params), state
 
+    def placeholder(self, key, learner):
+        return learner.params  # the shape of a champion, without training a block
+
     def tell(self, key, population, score, fitness, state):
-        state, m = _block_program(self.ppo, self.sim, self.sim_params, self.block, self.anneal)(state, key)
+        """Nothing to select (``ask`` trained): the metrics of the block ``ask`` trained."""
+        m = state.last_block
         n = jnp.maximum(m["updates"], 1).astype(jnp.float32)
-        return state, {"train_episodes": m["episodes"], "train_return": m["return_sum"] / jnp.maximum(m["episodes"], 1),
-                       "updates": m["updates"], "policy_loss": m["policy_loss"] / n, "value_loss": m["value_loss"] / n,
+        # no episode ended in a block with no update (the previous block's last update ended its episodes)
+        ret = jnp.where(m["episodes"] > 0, m["return_sum"] / jnp.maximum(m["episodes"], 1), jnp.nan)
+        return state, {"train_episodes": m["episodes"], "train_return": ret, "updates": m["updates"],
+                       "policy_loss": m["policy_loss"] / n, "value_loss": m["value_loss"] / n,
                        "entropy": m["entropy"] / n, "shared_starts": m["shared_starts"]}
 
     def policy_for(self, sim):
