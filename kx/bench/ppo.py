@@ -9,7 +9,9 @@ steps, and such short episodes are not what training pays for most of its budget
 trained for ``--ppo-warmup`` updates (their time, compilation included, is reported apart); then each
 sample runs updates for at least ``--sample-seconds``. An environment step is an SMDP step, from one
 decision of the holder to the next: the figure counts the decisions PPO learns from, and beside it the
-world's iterations they spanned. The rollout alone (the same steps, no learning) is timed too.
+world's iterations they spanned. The rollout alone (the same steps, no learning) is timed too, and the
+environment's two interfaces on the same 1024 episodes: the per-episode step vmapped, and the batched
+step PPO trains on.
 
 **NEAT's side** is the run loop's evaluator (:func:`kx.sim.evaluate.evaluate`) playing the committed trained
 4v3 population of ``kx bench policies`` (``kx/bench/data/policies/neat_4v3.npz``: 150 genomes on 30
@@ -34,6 +36,7 @@ import time
 
 def run(args) -> None:
     import jax
+    import jax.numpy as jnp
     import numpy as np
 
     from kx import ppo
@@ -102,6 +105,29 @@ def run(args) -> None:
             dt += time.perf_counter() - t
             steps += steps_per_update
         return dt, steps, iterations
+
+    # the environment's two interfaces on the same episodes and decisions (holding): the per-episode step
+    # vmapped (batch first) against the batched step (batch-last), median of 5 calls after one that compiles
+    n_env = 1024
+    keys = jax.random.split(jax.random.key(args.seed + 2), n_env)
+    _, batch = enc.env.reset_batch(jax.random.key(args.seed + 2), n_env, enc.sim_params)
+    one = jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), batch)
+    hold = jnp.zeros((n_env,), jnp.int32)
+    env_calls = {"vmapped": (jax.jit(jax.vmap(enc.env.step_env, in_axes=(0, 0, 0, None))),
+                             (keys, one, hold, enc.sim_params)),
+                 "batched": (jax.jit(enc.env.step_batch_env), (batch, hold, enc.sim_params))}
+    env_us = {}
+    for name, (fn, call_args) in env_calls.items():
+        jax.block_until_ready(fn(*call_args))
+        times = []
+        for _ in range(5):
+            t = time.perf_counter()
+            jax.block_until_ready(fn(*call_args))
+            times.append(time.perf_counter() - t)
+        env_us[name] = float(np.median(times)) / n_env * 1e6
+    print(f"environment, {n_env} episodes holding: the per-episode step vmapped {env_us['vmapped']:.2f} us an "
+          f"episode, the batched step {env_us['batched']:.2f} us ({env_us['vmapped'] / env_us['batched']:.0f}x)",
+          flush=True)
 
     neat_work()  # compiles the evaluator's widths
     samples = {"ppo": [], "rollout": [], "neat": []}

@@ -21,16 +21,17 @@ starts a new episode once one ends (gymnax's convention, with ``reset``'s key); 
 finished episode as it is.
 
 **Many episodes at once, fast.** vmapped, the per-episode functions put the batch first, and the world's
-code, written batch-last (:mod:`kx.sim.env`), then costs about 45x more per episode (4.9 us against
-0.11 us for an iteration of 2048 3v2 episodes, 2026-12-03); and a vmapped SMDP step runs every episode's
-iterations until the slowest one reaches its decision. :meth:`KeepAway.reset_batch` and
-:meth:`KeepAway.step_batch` play ``n`` episodes batch-last with the same rules (a test steps both with the
-same decisions and gets the same worlds): each episode iterates until its own next decision, the others
-wait, unchanged. A start state costs about 50 iterations (5.7 us: top-k of uniform scores over the
-field's cells), so ``step_batch`` draws ``resets`` start states per step rather than one per episode
-(Craftax's "optimistic resets", Matthews et al. 2024): the episodes that end in a step take them in
-order, each with a noise word of its own; should more end in one step than there are starts, the
-later ones share the earlier ones' starts (``info["shared_starts"]`` counts them).
+code, written batch-last (:mod:`kx.sim.env`), then costs far more per episode; and a vmapped SMDP step
+runs every episode's iterations until the slowest one reaches its decision. :meth:`KeepAway.reset_batch`
+and :meth:`KeepAway.step_batch` play ``n`` episodes batch-last with the same rules (a test steps both with
+the same decisions and gets the same worlds): each episode iterates until its own next decision, the
+others wait, unchanged (``python -m kx.bench ppo``: an SMDP step of 1024 4v3 episodes holding the ball,
+10.1 us an episode vmapped against 0.78 us batched, 2026-12-03). A start state costs about 50
+iterations (5.7 us: top-k of uniform scores over the field's cells), so ``step_batch`` draws ``resets``
+start states per step rather than one per episode (Craftax's "optimistic resets", Matthews et al. 2024):
+the episodes that end in a step take them in order, each with a noise word of its own; should more end
+in one step than there are starts, the later ones share the earlier ones' starts
+(``info["shared_starts"]`` counts them).
 """
 
 from __future__ import annotations
