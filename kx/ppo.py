@@ -48,8 +48,8 @@ class PPOConfig:
     hidden: int = 64
     resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
-    # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100, 100
-    # updates: 0.33 on 200 test starts, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0)
+    # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
+    # 100 updates, 0.40 after 400, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0, 200 test starts)
 
     def __post_init__(self):
         if (self.num_envs * self.num_steps) % self.num_minibatches:
