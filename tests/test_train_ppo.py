@@ -78,6 +78,7 @@ def test_a_transferred_run_starts_from_the_source_weights_with_a_fresh_optimiser
             run_lib.Trainer(target(*extra)).init()
 
 
+@pytest.mark.slow  # ~25 s: two runs as a group and alone; the default suite checks groups on NEAT
 def test_a_batched_group_of_ppo_runs_writes_what_each_run_writes_alone(tmp_path):
     """``kx.train --seeds`` and the protocol's groups: each run's blocks of updates run alone, and the
     group's evaluations (one table of the runs' networks, each lane gathering its own) decide as each run's
