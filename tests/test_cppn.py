@@ -249,6 +249,7 @@ def _classify(parents, kids):
     return cat(1), cat(2), cat(3), sum((r[4] for r in rows), []), sum((r[5] for r in rows), [])
 
 
+@pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_the_presets_structural_rates_through_tell():
     parents, kids, metrics = _offspring(0.0, 150)
     for m in metrics:  # nothing capped or skipped: every drawn mutation was carried out

@@ -292,6 +292,7 @@ def test_the_protocol_in_batched_groups_gives_the_results_of_its_runs_one_by_one
     assert cut(texts[0]) == cut(texts[1])
 
 
+@pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(tmp_path):
     # killed during its fourth run (run 1's source): after its first checkpoint, before its second
     seen = []

@@ -94,6 +94,7 @@ def _folder(tmp_path):
     return out
 
 
+@pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_the_report_is_the_hand_computed_comparison_and_regenerates_byte_for_byte(tmp_path):
     out = _folder(tmp_path)
     text = novelty.write_report(out).read_text()

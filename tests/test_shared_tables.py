@@ -130,6 +130,7 @@ def test_narrowing_batch_equals_single_episodes(mode):
     assert c.live_steps < c.executed_steps < c.widths[0] * int(final.t.max())
 
 
+@pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_150_shared_tables_of_400x400_over_4500_lanes_fit_in_1_5_gb():
     """The evaluator keeps one copy of the 96 MB table (per-lane copies would take 4500 x 400 x 400 x 4
     bytes = 2.9 GB). A fresh process, so that the peak is this evaluation's."""
