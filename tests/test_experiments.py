@@ -642,3 +642,30 @@ def test_the_protocols_ppo_runs_learn_from_neats_episodes(tmp_path):
     row = t3.planned(protocol, t3.RunSpec("ppo", "fitness", "target", "4v3", 0), tmp_path)
     assert (row["episodes"], row["source_episodes"], row["population"]) == (72, 48, 1)
     assert t3.METHOD_SETUPS["ppo"] == ("none", "fitness")
+
+
+@pytest.mark.slow  # ~60 s: two PPO sources and four targets
+def test_a_tiny_ppo_protocol_runs_its_sources_and_targets_and_reports_neats_episodes(tmp_path):
+    """PPO's cells run end to end through the protocol in batched groups (sources, then targets from their
+    weights); their rows and the report count NEAT's episodes (a generation is a training block of
+    population x trials episodes, not PPO's population of one x trials), and its claim is in the
+    secondary family."""
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
+    rows = t3.run(tmp_path / "t3", protocol, t3.plan(("ppo",), ("4v3",), ("none", "fitness"), runs=2),
+                  log=lambda s: None, batch=2)
+    assert sorted((r["setup"], r["phase"], int(r["run"])) for r in rows) == [
+        ("fitness", "source", 0), ("fitness", "source", 1), ("fitness", "target", 0), ("fitness", "target", 1),
+        ("none", "target", 0), ("none", "target", 1)]
+    for r in rows:
+        assert (r["method"], int(r["population"]), int(r["episodes"])) == ("ppo", 1, 2 * 24)
+        assert int(r["source_episodes"]) == (48 if r["setup"] == "fitness" and r["phase"] == "target" else 0)
+        assert 0.0 <= float(r["test_fitness"]) <= 1.0 and len(t3.curve(r, "best_so_far")) == 2
+    md = report.write(tmp_path / "t3").read_text()
+    assert "- PPO source: 2 x 24 training episodes = 48 episodes" in md
+    assert "- PPO target: 2 x 24 training episodes = 48 episodes" in md
+    eff = {(m, s): (g, ev) for m, t, s, _, g, ev, *_ in report.efficiency(rows)}
+    g, ev = eff[("ppo", "none")]
+    assert g in (1, 2) and ev == g * 24  # the no-transfer mean reaches its own final level by its end
+    g, ev = eff[("ppo", "fitness")]
+    assert g is None or ev == g * 24 + 48
+    assert re.search(r"\| PPO: Fitness transfer vs No transfer \| 4v3 \| 2 \|", md)
