@@ -356,6 +356,10 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
                      r"way)\), mean difference [+-]\d\.\d{3}, Holm p = .*; power \d+% with these runs, (> )?\d+ runs a "
                      r"cell for 80%\.$", line), line
     assert "HyperNEAT beats NEAT.**\n- max_fitness: not measured in these runs." in md
+    # what the full protocol still lacks, costed, with the commands that run it
+    assert "| NEAT | target | 4v3 | No transfer | 2 | 18 |" in md and "| NEAT | source | 3v2 | fitness | 2 | 18 |" in md
+    assert "| PPO | source | 3v2 | fitness | 0 | 20 | — |" in md
+    assert "python -m kx.experiments table3 --runs 20 --methods neat --targets 4v3,5v3,6v4 --out <this folder>" in md
 
 
 def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
@@ -596,6 +600,36 @@ def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mea
     assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target", "PPO source", "PPO target"}
     assert ("left out, with no runs here: CMA-ES target, PPO source, PPO target"
             in report.full_protocol_estimate(rows, runs=1))
+
+
+def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost():
+    from kx.experiments import report
+
+    def row(method, setup, phase, target, run, wall):
+        return {"method": method, "setup": setup, "phase": phase, "target": target, "run": str(run),
+                "wall_seconds": str(wall)}
+
+    # NEAT complete at 2 runs a cell but for 6v4's fitness transfer run 1; HyperNEAT: one source and one 4v3
+    # run; CMA-ES and PPO: nothing
+    rows = [row("neat", o, "source", "3v2", i, 10) for o in ("fitness", "hybrid") for i in range(2)]
+    rows += [row("neat", s, "target", t, i, 20 if t == "4v3" else 40) for s in t3.METHOD_SETUPS["neat"]
+             for t in t3.TARGETS for i in range(2) if (s, t, i) != ("fitness", "6v4", 1)]
+    rows += [row("hyperneat", "fitness", "source", "3v2", 0, 30), row("hyperneat", "none", "target", "4v3", 0, 50)]
+    cells = report.still_to_run(rows, runs=2)
+    by = {(c["method"], c["phase"], c["target"], c["setup"]): c for c in cells}
+    neat = [c for c in cells if c["method"] == "neat"]
+    assert [(c["target"], c["setup"], c["runs"], c["missing"], c["seconds"]) for c in neat] == [
+        ("6v4", "fitness", 1, 1, 40.0)]
+    assert by["hyperneat", "source", "3v2", "fitness"]["missing"] == 1
+    assert by["hyperneat", "source", "3v2", "hybrid"] == {
+        "method": "hyperneat", "phase": "source", "target": "3v2", "setup": "hybrid", "runs": 0, "missing": 2,
+        "seconds": 60.0, "borrowed": False}
+    h4, h6 = by["hyperneat", "target", "4v3", "none"], by["hyperneat", "target", "6v4", "novelty"]
+    assert (h4["runs"], h4["missing"], h4["seconds"]) == (1, 1, 50.0)
+    assert (h6["seconds"], h6["borrowed"]) == (100.0, True)  # 6v4 has no HyperNEAT run: its 4v3 mean, twice
+    assert by["cma_es", "target", "5v3", "none"]["seconds"] is None
+    assert sum(c["missing"] for c in cells) == len(t3.plan(runs=2)) - len(rows)
+    assert [c["method"] for c in cells] == sorted((c["method"] for c in cells), key=t3.METHODS.index)
 
 
 def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_path):

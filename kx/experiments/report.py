@@ -373,23 +373,83 @@ def _throughput(rows: list[dict]) -> list[str]:
     return lines + ["", measured, "", full_protocol_estimate(rows)]
 
 
+def _run_seconds(rows: list[dict], spec: t3.RunSpec) -> tuple[float | None, bool]:
+    """What one run of ``spec`` costs on the machine ``rows`` ran on: the mean wall time per run of its method,
+    phase and target in ``rows``; with no run of that target, the mean over its method and phase's other
+    targets (then the flag is true); ``None`` with no run of its method and phase at all."""
+    same = [r for r in rows if r["method"] == spec.method and r["phase"] == spec.phase]
+    here = [r for r in same if r["target"] == spec.target]
+    if not same:
+        return None, False
+    return float(np.mean([float(r["wall_seconds"]) for r in here or same])), not here
+
+
 def full_protocol_seconds(rows: list[dict], runs: int = 20) -> tuple[float, set, set]:
     """The whole protocol's wall time on the machine these rows ran on: every run of :func:`table3.plan`
     (``runs`` a cell, every method, target and setup) at the mean wall time per run of its method, phase
-    and target in ``rows``. Returns the seconds, the target tasks with no run here (costed at their
-    method's mean over the targets that have some) and the method phases with none (left out)."""
+    and target in ``rows`` (:func:`_run_seconds`). Returns the seconds, the target tasks with no run here
+    (costed at their method's mean over the targets that have some) and the method phases with none (left
+    out)."""
     total, borrowed, missing = 0.0, set(), set()
     for spec in t3.plan(runs=runs):
-        same = [r for r in rows if r["method"] == spec.method and r["phase"] == spec.phase]
-        here = [r for r in same if r["target"] == spec.target]
-        if not here:
-            if not same:
-                missing.add(f"{METHOD_NAMES[spec.method]} {spec.phase}")
-                continue
+        seconds, other = _run_seconds(rows, spec)
+        if seconds is None:
+            missing.add(f"{METHOD_NAMES[spec.method]} {spec.phase}")
+            continue
+        if other:
             borrowed.add(spec.target)
-            here = same
-        total += float(np.mean([float(r["wall_seconds"]) for r in here]))
+        total += seconds
     return total, borrowed, missing
+
+
+def still_to_run(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[dict]:
+    """The cells of the full protocol (:func:`table3.plan` at ``runs`` a cell) that ``rows`` does not fill, in
+    the plan's order of methods: per cell its method, phase, target, setup, the runs it has and the runs it
+    lacks, and what those cost on this machine (:func:`_run_seconds`; ``None`` where the method's phase has
+    no run to cost them by, ``borrowed`` where its target has none)."""
+    have = collections.Counter((r["method"], r["phase"], r["target"], r["setup"]) for r in rows)
+    done = {(r["method"], r["setup"], r["phase"], r["target"], int(r["run"])) for r in rows}
+    cells: dict[tuple, dict] = {}
+    for spec in t3.plan(runs=runs):
+        if spec.key in done:
+            continue
+        cell = (spec.method, spec.phase, spec.target, spec.setup)
+        seconds, other = _run_seconds(rows, spec)
+        c = cells.setdefault(cell, {"method": spec.method, "phase": spec.phase, "target": spec.target,
+                                    "setup": spec.setup, "runs": have[cell], "missing": 0, "seconds": 0.0,
+                                    "borrowed": other})
+        c["missing"] += 1
+        c["seconds"] = None if seconds is None else c["seconds"] + seconds
+    order = {m: i for i, m in enumerate(t3.METHODS)}
+    return sorted(cells.values(), key=lambda c: (order[c["method"]], c["phase"] != "source",
+                                                 t3.TARGETS.index(c["target"]) if c["target"] in t3.TARGETS else -1,
+                                                 list(t3.SETUPS).index(c["setup"]) if c["setup"] in t3.SETUPS else -1))
+
+
+def _still_to_run(rows: list[dict]) -> list[str]:
+    cells = still_to_run(rows)
+    if not cells:
+        return [f"Nothing: every cell of the full protocol has its {design.RUNS_PER_CELL} runs."]
+    lines = [f"The cells of the full protocol ({design.RUNS_PER_CELL} runs a cell) short of their runs, and what "
+             "the missing runs cost one after another on this machine at the Cost table's mean wall time per run "
+             "(\\*: a target with no run of its method yet, costed at the method's other targets; —: no run of "
+             "the method's phase to cost it by). A protocol folder holding only results.csv, protocol.json and "
+             "this report extends anywhere: a missing source re-runs and must reproduce its row.", "",
+             "| method | phase | task | setup | runs here | missing | hours |", "|---|---|---|---|---|---|---|"]
+    for c in cells:
+        setup = c["setup"] if c["phase"] == "source" else t3.SETUPS[c["setup"]].label
+        hours = "—" if c["seconds"] is None else f"{c['seconds'] / 3600:.2f}" + ("\\*" if c["borrowed"] else "")
+        lines.append(f"| {METHOD_NAMES[c['method']]} | {c['phase']} | {c['target']} | {setup} | {c['runs']} | "
+                     f"{c['missing']} | {hours} |")
+    costed = [c["seconds"] for c in cells if c["seconds"] is not None]
+    lines += ["", f"In all {sum(c['missing'] for c in cells)} runs, **{sum(costed) / 3600:.1f} hours** for those "
+              f"costed. To run them (each command resumes what is under way and skips what is done; `--targets` "
+              "and `--setups` narrow it further):", "", "```"]
+    for m in dict.fromkeys(c["method"] for c in cells):
+        targets = [t for t in t3.TARGETS if any(c["method"] == m and c["target"] == t for c in cells)]
+        lines.append(f"python -m kx.experiments table3 --runs {design.RUNS_PER_CELL} --methods {m} "
+                     f"--targets {','.join(targets or t3.TARGETS)} --out <this folder>")
+    return lines + ["```"]
 
 
 def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
@@ -486,6 +546,7 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     md += ["", "## Cost", "", "Wall time per run (compilation, validation, checkpoints and the test included) "
            "against the sum of its generations' own times, both measured in the protocol's process.", ""]
     md += _throughput(rows)
+    md += ["", "## Still to run", ""] + _still_to_run(rows)
     md += ["", "## Where kx differs from the paper", ""] + DIFFERENCES
     md += ["", "Statistics: scipy (Mann-Whitney U, bootstrap), statsmodels (Lilliefors, Holm). The `rliable` library "
            "does not install with kx's pinned stack (arch 7.2.0, which rliable 1.2.0 requires, fails to import "
