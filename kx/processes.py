@@ -32,6 +32,8 @@ from typing import Callable, Sequence
 
 #: the local launcher's environment for its processes (:func:`launch_local`)
 ENV_COORDINATOR, ENV_COUNT, ENV_ID = "KX_COORDINATOR", "KX_NUM_PROCESSES", "KX_PROCESS_ID"
+#: how many processes the local launcher started on this machine, dealing its cores among them
+ENV_LOCAL = "KX_LOCAL_PROCESSES"
 #: how long a process waits for the coordinator and the others at start-up, and at a barrier
 START_TIMEOUT_S = 300
 BARRIER_TIMEOUT_S = 7 * 24 * 3600  # a barrier waits for the slowest process's share of the experiment
@@ -129,6 +131,16 @@ def initialize(coordinator: str | None = None, count: int | None = None, index: 
     return Shard(int(state.process_id), int(state.num_processes))
 
 
+def machine_sharers() -> int:
+    """How many processes of this experiment share this machine's cores: the local launcher's ``n``
+    (:func:`launch_local` deals the cores among them), else 1 (one process alone, or a cluster's processes,
+    each on cores of its own)."""
+    value = os.environ.get(ENV_LOCAL, "1")
+    if not value.isdigit() or int(value) < 1:
+        raise ProcessError(f"{ENV_LOCAL}: allowed an integer >= 1, got {value!r}")
+    return int(value)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -146,7 +158,7 @@ def launch_local(module: str, argv: Sequence[str], n: int, log: Callable[[str], 
     procs = []
     for k in range(n):
         flags = [f for f in os.environ.get("XLA_FLAGS", "").split() if "xla_force_host_platform_device_count" not in f]
-        env = {**os.environ, ENV_COORDINATOR: address, ENV_COUNT: str(n), ENV_ID: str(k),
+        env = {**os.environ, ENV_COORDINATOR: address, ENV_COUNT: str(n), ENV_ID: str(k), ENV_LOCAL: str(n),
                "XLA_FLAGS": " ".join([*flags, f"--xla_force_host_platform_device_count={devices}"])}
         procs.append(subprocess.Popen([sys.executable, "-u", "-m", module, *argv], env=env, stdout=subprocess.PIPE,
                                       stderr=subprocess.STDOUT, text=True, start_new_session=True))

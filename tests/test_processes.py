@@ -130,6 +130,47 @@ def test_process_files_merge_once_in_the_plans_order(tmp_path):
     assert t3.merge_results(tmp_path) == merged  # nothing left to merge: unchanged
 
 
+def test_local_processes_charge_each_run_its_share_of_the_machine(monkeypatch, tmp_path):
+    """Under the local launcher, N processes share the machine's cores: each learns N from its environment
+    and charges its runs 1/N more of its group's time (a run's wall_seconds is its share of the machine);
+    alone, or on a cluster (no such variable), 1."""
+    from kx import processes
+    from kx.experiments import measure
+
+    monkeypatch.delenv(processes.ENV_LOCAL, raising=False)
+    assert processes.machine_sharers() == 1
+    for bad in ("0", "two"):
+        monkeypatch.setenv(processes.ENV_LOCAL, bad)
+        with pytest.raises(processes.ProcessError, match=f"KX_LOCAL_PROCESSES: allowed an integer >= 1, got '{bad}'"):
+            processes.machine_sharers()
+    envs = []
+
+    class Done:  # a process that has already exited, cleanly
+        pid, returncode, stdout = 0, 0, ()
+
+        def __init__(self, args, env, **kw):
+            envs.append(env)
+
+        def poll(self):
+            return 0
+
+    monkeypatch.setattr(processes.subprocess, "Popen", Done)
+    assert processes.launch_local("kx.experiments", ["table3"], 3, log=lambda s: None) == 0
+    assert [(e[processes.ENV_LOCAL], e[processes.ENV_ID]) for e in envs] == [("3", "0"), ("3", "1"), ("3", "2")]
+    monkeypatch.setenv(processes.ENV_LOCAL, envs[1][processes.ENV_LOCAL])
+    assert processes.machine_sharers() == 3
+    # a group of two runs in one of the three processes: each run is charged a sixth of the group's time
+    clock = iter([100.0, 112.0])
+    monkeypatch.setattr(measure.time, "perf_counter", lambda: next(clock))
+    monkeypatch.setattr(measure.group_lib, "train_group", lambda cfgs, dirs, resume, log: None)
+    monkeypatch.setattr(measure, "champion_on_test", lambda d, seed, trials: (None, None, 0.5))
+    for d in (tmp_path / "a", tmp_path / "b"):
+        d.mkdir()
+        (d / "metrics.csv").write_text("generation,best_fitness\n1,0.25\n")
+    runs = list(measure.train_and_measure([None, None], [tmp_path / "a", tmp_path / "b"], 0, 4))
+    assert [(r.share, r.wall_seconds, r.max_fitness) for r in runs] == [(6, 2.0, 0.25)] * 2
+
+
 @pytest.mark.slow  # ~60 s
 def test_a_sweep_under_two_processes_gives_the_one_process_results(tmp_path):
     args = ["sweep", "--config", "configs/neat_3v2.py", "--grid", "trials=2,3", "--seeds", "0-2", "--test-trials", "4",

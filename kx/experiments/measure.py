@@ -17,6 +17,7 @@ from typing import Callable, Iterator
 
 import ml_collections
 
+from kx import processes
 from kx.evolve import checkpoint, streams
 from kx.evolve import group as group_lib
 from kx.evolve import run as run_lib
@@ -67,7 +68,8 @@ class Finished:
     test: float  # its validated champion's mean fitness on the test states
     metrics: list[dict]  # its metrics.csv rows (strings), one per generation
     wall: float  # seconds the group it trained in took, from the start of training to the end
-    share: int  # the size of that group: the run is charged 1/share of its time
+    share: int  # the run is charged 1/share of its group's time: the group's size, times the local processes
+    # sharing the machine's cores (kx.processes.machine_sharers), so that it is the run's share of the machine
 
     @property
     def max_fitness(self) -> float:
@@ -76,7 +78,7 @@ class Finished:
 
     @property
     def wall_seconds(self) -> float:
-        """Its share of its group's wall time, in seconds (3 decimals)."""
+        """Its share of its group's wall time on the machine, in seconds (3 decimals)."""
         return round(self.wall / self.share, 3)
 
 
@@ -99,7 +101,7 @@ def train_and_measure(cfgs: list[ml_collections.ConfigDict], dirs: list[pathlib.
         trainer, state, test = champion_on_test(d, test_seed, test_trials)
         with (pathlib.Path(d) / "metrics.csv").open() as f:
             metrics = list(csv.DictReader(f))
-        yield Finished(pathlib.Path(d), trainer, state, test, metrics, wall, len(dirs))
+        yield Finished(pathlib.Path(d), trainer, state, test, metrics, wall, len(dirs) * processes.machine_sharers())
 
 
 @dataclasses.dataclass(frozen=True)

@@ -543,8 +543,10 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     names = _plots(rows, out)
     md += ["## Plots", ""]
     md += [f"![{n}]({n})" for n in names]
-    md += ["", "## Cost", "", "Wall time per run (compilation, validation, checkpoints and the test included) "
-           "against the sum of its generations' own times, both measured in the protocol's process.", ""]
+    md += ["", "## Cost", "", "Wall time per run (its share of its batched group's training: compilation, "
+           "validation and checkpoints included, the test not; a resumed run's from its resumption) against the "
+           "sum of its generations' own times, both measured in the protocol's process (and divided among the "
+           "local processes that shared the machine's cores).", ""]
     md += _throughput(rows)
     md += ["", "## Still to run", ""] + _still_to_run(rows)
     md += ["", "## Where kx differs from the paper", ""] + DIFFERENCES
