@@ -404,11 +404,11 @@ def full_protocol_seconds(rows: list[dict], runs: int = 20) -> tuple[float, set,
 
 def still_to_run(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[dict]:
     """The cells of the full protocol (:func:`table3.plan` at ``runs`` a cell) that ``rows`` does not fill, in
-    the plan's order of methods: per cell its method, phase, target, setup, the runs it has and the runs it
+    the plan's order of a run index's cells: per cell its method, phase, target, setup, the runs it has and the runs it
     lacks, and what those cost on this machine (:func:`_run_seconds`; ``None`` where the method's phase has
     no run to cost them by, ``borrowed`` where its target has none)."""
     have = collections.Counter((r["method"], r["phase"], r["target"], r["setup"]) for r in rows)
-    done = {(r["method"], r["setup"], r["phase"], r["target"], int(r["run"])) for r in rows}
+    done = {t3.row_key(r) for r in rows}
     cells: dict[tuple, dict] = {}
     for spec in t3.plan(runs=runs):
         if spec.key in done:
@@ -420,10 +420,8 @@ def still_to_run(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[dic
                                     "borrowed": other})
         c["missing"] += 1
         c["seconds"] = None if seconds is None else c["seconds"] + seconds
-    order = {m: i for i, m in enumerate(t3.METHODS)}
-    return sorted(cells.values(), key=lambda c: (order[c["method"]], c["phase"] != "source",
-                                                 t3.TARGETS.index(c["target"]) if c["target"] in t3.TARGETS else -1,
-                                                 list(t3.SETUPS).index(c["setup"]) if c["setup"] in t3.SETUPS else -1))
+    rank = {(s.method, s.phase, s.target, s.setup): i for i, s in enumerate(t3.plan(runs=1))}
+    return sorted(cells.values(), key=lambda c: rank[c["method"], c["phase"], c["target"], c["setup"]])
 
 
 def _still_to_run(rows: list[dict]) -> list[str]:
