@@ -243,6 +243,21 @@ def _path_steps(j0, hc, fields, starts, length, size: int):
             jnp.where(on, value, 0.0))
 
 
+def _chain(w_flat: jax.Array, base: jax.Array, total: jax.Array, cells: jax.Array, values: jax.Array) -> jax.Array:
+    """``total + values[e] * w[base + cells[e]]`` for each entry ``e`` in turn, unrolled: an elementwise chain
+    of multiply-adds over the batch that reads each lane's weights of a row one after another."""
+    for e in range(values.shape[0]):
+        total = total + values[e][None] * w_flat.at[base + cells[e][None]].get(mode="promise_in_bounds")
+    return total
+
+
+def _agent_sums(w_flat, b_flat, n: int, index, rows, a_cell, a_val):
+    """The rows' biases plus the agents' entries (:func:`_chain`), and the rows' flat offsets ``[R, *B]``."""
+    base = _genome_rows(index, rows, n)  # [R, *B]
+    bias = b_flat.at[index[None] * n + rows].get(mode="promise_in_bounds")
+    return _chain(w_flat, base, bias, a_cell, a_val), base
+
+
 def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State, config: KeepAwayConfig,
                    image: str = "paper", activation: str | None = "bipolar_sigmoid",
                    busy: jax.Array | None = None) -> jax.Array:
@@ -279,16 +294,8 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
         length = jnp.where(busy, length, 0)
         a_cell, a_val = jnp.where(busy[None], a_cell, hc[None]), jnp.where(busy[None], a_val, 0.0)
 
-    def chain(base, total, cells, values):  # unrolled: an elementwise chain over the batch
-        for e in range(values.shape[0]):
-            total = total + values[e][None] * w_flat.at[base + cells[e][None]].get(mode="promise_in_bounds")
-        return total
-
-    def agents(index, rows, a_cell, a_val):
-        base = _genome_rows(index, rows, n)  # [R, *B]
-        bias = b_flat.at[index[None] * n + rows].get(mode="promise_in_bounds")
-        return chain(base, bias, a_cell, a_val), base
-
+    chain = functools.partial(_chain, w_flat)
+    agents = functools.partial(_agent_sums, w_flat, b_flat, n)
     total, base = fenced(agents, index, rows, a_cell, a_val)
     longest = jnp.max(length)
 
@@ -320,16 +327,8 @@ def _entry_outputs(w_flat, b_flat, index, rows, state, config, image, busy=None)
     path_cells = cells[n_a:].reshape((n_p, n_s) + cells.shape[1:])  # [P, S, *B]
     path_values = values[n_a:].reshape((n_p, n_s) + values.shape[1:])
 
-    def chain(base, total, cells, values):  # unrolled: an elementwise chain over the batch
-        for e in range(values.shape[0]):
-            total = total + values[e][None] * w_flat.at[base + cells[e][None]].get(mode="promise_in_bounds")
-        return total
-
-    def agents(index, rows, a_cell, a_val):
-        base = _genome_rows(index, rows, n)  # [R, *B]
-        bias = b_flat.at[index[None] * n + rows].get(mode="promise_in_bounds")
-        return chain(base, bias, a_cell, a_val), base
-
+    chain = functools.partial(_chain, w_flat)
+    agents = functools.partial(_agent_sums, w_flat, b_flat, n)
     total, base = fenced(agents, index, rows, cells[:n_a], values[:n_a])
 
     def path(p, total):
