@@ -316,8 +316,8 @@ def _entry_outputs(w_flat, b_flat, index, rows, state, config, image, busy=None)
     agents' entries, then the paths' steps a path at a time (a loop over the paths, each path's ``W - 2``
     steps an unrolled chain of multiply-adds reading each lane's weights as :func:`sparse_outputs` does).
     Until 2026-12-03 every weight of the list was gathered into a ``[R, E, *B]`` array first; the chains
-    give the same sums bit for bit (``tests/test_bev.py``) at 0.4-0.5 times the cost of a decision
-    (the trained 4v3 fixture's substrates on 4500 5v3 and 6v4 states, one core)."""
+    give the same sums bit for bit (``tests/test_bev.py``) at 0.45-0.57 times the cost of a decision
+    (``scripts/bev_every_entry.py``: the trained 4v3 fixture's substrates on 4500 5v3 and 6v4 states, one core)."""
     n = config.field_size**2
     n_a, n_s = config.n_keepers + config.n_takers, config.field_size - 2
     cells, values = fenced(functools.partial(sparse_image, config=config, image=image), state)  # [E, *B]
