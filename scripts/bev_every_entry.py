@@ -13,8 +13,8 @@ from kx import runtime
 
 runtime.setup(1)
 
+import argparse  # noqa: E402
 import functools  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 
 import jax  # noqa: E402
@@ -87,4 +87,6 @@ def main(tasks):
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:] or ["5v3", "6v4"])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("tasks", nargs="*", default=["5v3", "6v4"], help="tasks (default 5v3 6v4)")
+    main(parser.parse_args().tasks)
