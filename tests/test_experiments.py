@@ -8,6 +8,7 @@ import math
 import pathlib
 import re
 import shutil
+import time
 import types
 
 import numpy as np
@@ -435,6 +436,34 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 7  # the header, 4 rows, 5v3's 2
     assert [r["target"] for r in t3.read_results(out / "results.csv")[-2:]] == ["5v3", "5v3"]
     assert (out / "protocol.json").read_bytes() == committed["protocol.json"]
+
+
+def test_a_resumed_run_is_charged_its_generations_before_the_resumption(tmp_path):
+    """A run killed after its first checkpoint and resumed is charged the generations its checkpoint holds
+    (metrics.csv's generation_seconds, as recorded before the kill) beside the resumed call's own time; a
+    generation trained past the checkpoint, trained again, is not counted twice."""
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=3, overrides=SMALL)
+    run = tmp_path / "run"
+    cfg = t3.config(protocol, t3.RunSpec("neat", "none", "target", "4v3", 0), tmp_path)
+
+    def dying(line):
+        if re.search(r"gen +2/3", line):
+            raise _Interrupt
+
+    with pytest.raises(_Interrupt):
+        list(measure.train_and_measure([cfg], [run], 3, 4, log=dying))
+    assert ckpt.steps(run) == [1]
+    with (run / "metrics.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [r["generation"] for r in rows] == ["0", "1"]  # the second generation's row, past the checkpoint
+    rows[0]["generation_seconds"], rows[1]["generation_seconds"] = "1000.0", "5000.0"
+    csvfile.write(run / "metrics.csv", list(rows[0]), rows)
+    t0 = time.perf_counter()
+    (done,) = measure.train_and_measure([cfg], [run], 3, 4, log=lambda s: None)
+    took = time.perf_counter() - t0
+    assert [r["generation"] for r in done.metrics] == ["0", "1", "2"]
+    assert done.metrics[0]["generation_seconds"] == "1000.0"
+    assert 1000 < done.wall < 1000 + took and done.share == 1 and done.wall_seconds == round(done.wall, 3)
 
 
 def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeypatch):

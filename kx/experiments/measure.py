@@ -58,6 +58,17 @@ def finished(run_dir: pathlib.Path, generations: int) -> bool:
     return started(run_dir) and generations in checkpoint.steps(pathlib.Path(run_dir))
 
 
+def _seconds_before(run_dir: pathlib.Path) -> float:
+    """The time a run directory's generations that its last checkpoint holds took (metrics.csv's
+    ``generation_seconds``, the time of the group the run trained in): what a resumption does not train again."""
+    done = max(checkpoint.steps(run_dir), default=0)
+    path = run_dir / "metrics.csv"
+    if not done or not path.is_file():
+        return 0.0
+    with path.open() as f:
+        return sum(float(r["generation_seconds"]) for r in csv.DictReader(f) if int(r["generation"]) < done)
+
+
 @dataclasses.dataclass(frozen=True)
 class Finished:
     """A finished run, measured."""
@@ -67,7 +78,8 @@ class Finished:
     state: object  # its last checkpoint's run state
     test: float  # its validated champion's mean fitness on the test states
     metrics: list[dict]  # its metrics.csv rows (strings), one per generation
-    wall: float  # seconds the group it trained in took, from the start of training to the end
+    wall: float  # seconds the run took on the machine with its group: the group's time from the start of
+    # this training to its end, plus, for a run resumed from a checkpoint, its generations before the resumption
     share: int  # the run is charged 1/share of its group's time: the group's size, times the local processes
     # sharing the machine's cores (kx.processes.machine_sharers), so that it is the run's share of the machine
 
@@ -89,19 +101,24 @@ def train_and_measure(cfgs: list[ml_collections.ConfigDict], dirs: list[pathlib.
     (:func:`kx.evolve.group.train_group`; the same results, bit for bit); ``log`` receives their progress
     lines. Then yields each run, in order, measured (:class:`Finished`): its validated champion on
     ``test_trials`` test states of its task from the test stream of ``test_seed``
-    (:func:`champion_on_test`), its metrics.csv and its share of the wall time."""
+    (:func:`champion_on_test`), its metrics.csv and its share of the wall time. A run resumed from a
+    checkpoint is charged its generations before the resumption too (metrics.csv's ``generation_seconds`` of
+    the generations its checkpoint holds): its wall time is then the training it took, not this call's part.
+    What a killed call spent past its last checkpoint, and between generations, is not counted."""
     resume = [started(d) for d in dirs]
+    before = [_seconds_before(pathlib.Path(d)) if r else 0.0 for d, r in zip(dirs, resume)]
     t0 = time.perf_counter()
     if len(cfgs) == 1:
         run_lib.train(cfgs[0], dirs[0], resume=resume[0], log=log)
     else:
         group_lib.train_group(cfgs, dirs, resume=resume, log=log)
     wall = time.perf_counter() - t0
-    for d in dirs:
+    share = len(dirs) * processes.machine_sharers()
+    for d, b in zip(dirs, before):
         trainer, state, test = champion_on_test(d, test_seed, test_trials)
         with (pathlib.Path(d) / "metrics.csv").open() as f:
             metrics = list(csv.DictReader(f))
-        yield Finished(pathlib.Path(d), trainer, state, test, metrics, wall, len(dirs) * processes.machine_sharers())
+        yield Finished(pathlib.Path(d), trainer, state, test, metrics, wall + b, share)
 
 
 @dataclasses.dataclass(frozen=True)

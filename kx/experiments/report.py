@@ -542,7 +542,8 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     md += ["## Plots", ""]
     md += [f"![{n}]({n})" for n in names]
     md += ["", "## Cost", "", "Wall time per run (its share of its batched group's training: compilation, "
-           "validation and checkpoints included, the test not; a resumed run's from its resumption) against the "
+           "validation and checkpoints included, the test not; a resumed run's generations before its resumption "
+           "at their recorded times) against the "
            "sum of its generations' own times, both measured in the protocol's process (and divided among the "
            "local processes that shared the machine's cores).", ""]
     md += _throughput(rows)
