@@ -468,8 +468,8 @@ def test_a_resumed_run_is_charged_its_generations_before_the_resumption(tmp_path
 
 def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeypatch):
     """The protocol's ETA: each run to go at the mean wall time of the finished runs of its cell (results.csv's,
-    then this process's), else of its method, phase and task; the current group less what it has run; runs
-    with neither are counted apart, not guessed."""
+    then this process's), else of its method, phase and task, else of its method and phase on other tasks (said
+    apart); the current group less what it has run; runs with none of these are counted apart, not guessed."""
     clock = [100.0]
     monkeypatch.setattr(t3.time, "perf_counter", lambda: clock[0])
     row = lambda s, p, t, w: {"method": "neat", "setup": s, "phase": p, "target": t, "wall_seconds": str(w)}  # noqa: E731
@@ -478,23 +478,28 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     spec = lambda s, p, t, i: t3.RunSpec("neat", s, p, t, i)  # noqa: E731
     todo = [[spec("none", "target", "5v3", 2), spec("none", "target", "5v3", 3)], [spec("fitness", "source", "3v2", 2)],
             [spec("none", "target", "6v4", 0)], [spec("fitness", "target", "5v3", 2)],
-            [spec("novelty", "target", "5v3", 2)]]
+            [spec("novelty", "target", "5v3", 2)], [t3.RunSpec("hyperneat", "none", "target", "4v3", 0)]]
     lines = []
     progress = t3._Progress(lines.append, todo, 3, 9, rows)
     progress.start(todo[0][0], "group")
     clock[0] += 30.0
-    # the current group (2 x 120 s, its cell's mean) has run 30 s: 210 s left; the source 20; 6v4 unknown;
-    # fitness 5v3 its cell's 300; novelty 5v3, a cell with none finished, its kind's mean (100, 140, 300)
-    assert progress.eta() == (210.0 + 20.0 + 300.0 + 180.0, 4, 1)
+    # the current group (2 x 120 s, its cell's mean) has run 30 s: 210 s left; the source 20; 6v4, with no run
+    # of its task, NEAT's targets' mean (100, 140, 50, 300); fitness 5v3 its cell's 300; novelty 5v3, a cell
+    # with none finished, its kind's mean (100, 140, 300); HyperNEAT, with no run at all, not costed. Rests
+    # on all 5 finished runs.
+    assert progress.eta() == (210.0 + 20.0 + 147.5 + 300.0 + 180.0, 5, 1, 1)
     progress.line("gen 3/50 2 runs  best 0.5  mean 0.2")
-    assert lines == ["[3/9 runs | group] gen 3/50  best 0.5  protocol ETA 11.8 min (from 4 finished runs; 1 runs of "
-                     "kinds with none finished not counted)"]
+    assert lines == ["[3/9 runs | group] gen 3/50  best 0.5  protocol ETA 14.3 min (from 5 finished runs; 1 runs "
+                     "costed at their method's runs of other tasks; 1 runs of kinds with none finished not counted)"]
     progress.finish(0)
     progress.add(row("none", "target", "5v3", 60))  # a run of this process: its cell's mean falls to 100 s
     progress.start(todo[1][0], "next")
-    assert progress.eta() == (20.0 + 300.0 + 150.0, 5, 1)
-    assert t3._Progress(lines.append, [[spec("none", "target", "6v4", 1)]], 0, 1, rows).eta_text().startswith(
-        "  protocol ETA unknown")
+    assert progress.eta() == (20.0 + 130.0 + 300.0 + 150.0, 6, 1, 1)
+    # one cell's runs: the estimate rests on those alone
+    assert t3._Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows).eta()[1:] == (1, 0, 0)
+    assert t3._Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
+                        rows).eta_text().startswith("  protocol ETA unknown")
+
 
 def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):
     for argv, want in ((["table3", "--out", str(tmp_path / "a"), "--methods", "neat,sarsa"], "--methods: allowed neat"),

@@ -306,14 +306,15 @@ def differences(recorded: dict, row: dict, fields: Iterable[str]) -> list[str]:
     return out
 
 
-def _kinds(row_or_spec) -> tuple[tuple, tuple]:
+def _kinds(row_or_spec) -> tuple[tuple, tuple, tuple]:
     """What a run's cost depends on, finest first: its cell (method, setup, phase, task: a transferred
-    population plays longer episodes from its first generation), then its method, phase and task."""
+    population plays longer episodes from its first generation), then its method, phase and task, then its
+    method and phase (another task's: its teams and episodes differ, so the cost is only a guide)."""
     if isinstance(row_or_spec, RunSpec):
         m, s, p, t = row_or_spec.method, row_or_spec.setup, row_or_spec.phase, row_or_spec.target
     else:
         m, s, p, t = (row_or_spec[k] for k in ("method", "setup", "phase", "target"))
-    return (m, s, p, t), (m, p, t)
+    return (m, s, p, t), (m, p, t), (m, p)
 
 
 class _Progress:
@@ -321,22 +322,26 @@ class _Progress:
 
     The ETA costs every run still to go at the mean wall time per run (``wall_seconds``: its share of its
     group's time) of the finished runs of its cell in results.csv, those of this process included, or
-    where its cell has none, of its method, phase and task; the current group is charged what it has left
-    of its runs' mean (at least nothing). A run with neither is not costed, and the line says how many
-    such runs there are and on how many finished runs the estimate rests. (Extrapolating this process's
-    first generations instead underestimates: their episodes are short.)"""
+    where its cell has none, of its method, phase and task, or where that has none either, of its method
+    and phase on the other tasks (said apart: the report's full-protocol estimate does the same); the
+    current group is charged what it has left of its runs' mean (at least nothing). A run with none of
+    these is not costed, and the line says how many such runs there are and on how many finished runs the
+    estimate rests. (Extrapolating this process's first generations instead underestimates: their
+    episodes are short.)"""
 
     def __init__(self, log, todo: list[list[RunSpec]], done: int, total: int, rows: list[dict]):
         self.log, self.todo, self.done, self.total = log, [list(c) for c in todo], done, total
-        self.walls: dict[tuple, list[float]] = {}
+        self.walls: list[float] = []  # every finished run's wall time, in the order seen
+        self.runs: dict[tuple, list[int]] = {}  # each kind's finished runs (indices into walls)
         for r in rows:
             self.add(r)
         self.t0 = time.perf_counter()
         self.current = None
 
     def add(self, row: dict) -> None:
+        self.walls.append(float(row["wall_seconds"]))
         for kind in _kinds(row):
-            self.walls.setdefault(kind, []).append(float(row["wall_seconds"]))
+            self.runs.setdefault(kind, []).append(len(self.walls) - 1)
 
     def start(self, spec: RunSpec, what: str | None = None):
         self.current, self.what, self.t0 = spec, what or spec.describe(), time.perf_counter()
@@ -345,32 +350,30 @@ class _Progress:
         self.todo.pop(0)
         self.done += n
 
-    def eta(self) -> tuple[float, int, int]:
-        """``(seconds, finished runs it rests on, runs not costed)`` for the groups still to go."""
-        seconds, basis, unknown = 0.0, set(), 0
+    def eta(self) -> tuple[float, int, int, int]:
+        """``(seconds, finished runs it rests on, runs costed at another task's runs, runs not costed)``
+        for the groups still to go."""
+        seconds, basis, elsewhere, unknown = 0.0, set(), 0, 0
         for i, chunk in enumerate(self.todo):
             cost = 0.0
             for spec in chunk:
-                kind = next((k for k in _kinds(spec) if self.walls.get(k)), None)
+                kind = next((k for k in _kinds(spec) if self.runs.get(k)), None)
                 if kind is None:
                     unknown += 1
                     continue
-                basis.add(kind)
-                cost += sum(self.walls[kind]) / len(self.walls[kind])
+                elsewhere += len(kind) == 2
+                basis.update(self.runs[kind])
+                cost += sum(self.walls[j] for j in self.runs[kind]) / len(self.runs[kind])
             seconds += max(cost - (time.perf_counter() - self.t0), 0.0) if i == 0 else cost
-        # the finished runs the figure rests on, each once (a cell's runs are also its kind's)
-        cells = {k for k in basis if len(k) == 4}
-        kinds = {k for k in basis if len(k) == 3}
-        rest = sum(len(self.walls[k]) for k in cells)
-        rest += sum(len(self.walls[k]) - sum(len(self.walls[c]) for c in cells if (c[0], c[2], c[3]) == k)
-                    for k in kinds)
-        return seconds, rest, unknown
+        return seconds, len(basis), elsewhere, unknown
 
     def eta_text(self) -> str:
-        seconds, basis, unknown = self.eta()
+        seconds, basis, elsewhere, unknown = self.eta()
         if not basis:
             return f"  protocol ETA unknown (no finished run of the kinds to go; {unknown} runs)"
         text = f"  protocol ETA {run_outputs.format_seconds(seconds)} (from {basis} finished runs"
+        if elsewhere:
+            text += f"; {elsewhere} runs costed at their method's runs of other tasks"
         return text + (f"; {unknown} runs of kinds with none finished not counted)" if unknown else ")")
 
     def line(self, text: str):
