@@ -322,6 +322,8 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     assert len({t3.row_key(r) for r in rows}) == 6 and all(r["phase"] == "target" or r["target"] == "3v2" for r in rows)
     for r in rows:
         assert len(t3.curve(r, "best_so_far")) == 2 and 0 <= float(r["test_fitness"]) <= 1
+        # every row's wall time holds its generations' times (a resumed run's charge: test_a_resumed_run_is_charged_...)
+        assert float(r["wall_seconds"]) >= float(r["generation_seconds"]) > 0
         assert int(r["seed"]) == t3.run_seed(3, r["method"], r["setup"], r["phase"], r["target"], int(r["run"]))
         if r["setup"] == "fitness" and r["phase"] == "target":
             assert int(r["source_seed"]) == int(next(s["seed"] for s in rows if s["phase"] == "source"
