@@ -668,6 +668,31 @@ def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost
     assert [c["method"] for c in cells] == sorted((c["method"] for c in cells), key=t3.METHODS.index)
 
 
+def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_claims_they_enter():
+    from kx.experiments import report
+
+    def row(method, setup, phase, target, run):
+        return {"method": method, "setup": setup, "phase": phase, "target": target, "run": str(run)}
+
+    # every NEAT cell at 2 runs; its fitness + NS transfer cells in 4v3 and 6v4 at 3, with their hybrid
+    # sources; HyperNEAT's no-transfer 5v3 cell at 3
+    rows = [row("neat", o, "source", "3v2", i) for o in ("fitness", "hybrid") for i in range(2)]
+    rows += [row("neat", s, "target", t, i) for s in t3.METHOD_SETUPS["neat"] for t in t3.TARGETS for i in range(2)]
+    rows += [row("neat", "hybrid", "source", "3v2", 2)] + [row("neat", "novelty", "target", t, 2) for t in ("6v4", "4v3")]
+    rows += [row("hyperneat", "none", "target", "5v3", i) for i in range(3)]
+    cells = report.extended_cells(rows, runs=2)
+    assert [(c["method"], c["phase"], c["target"], c["setup"], c["runs"]) for c in cells] == [
+        ("neat", "source", "3v2", "hybrid", 3), ("neat", "target", "4v3", "novelty", 3),
+        ("neat", "target", "6v4", "novelty", 3), ("hyperneat", "target", "5v3", "none", 3)]
+    assert cells[0]["claims"] == []
+    assert cells[1]["claims"] == ["neat/novelty > neat/none", "neat/novelty > neat/fitness",
+                                  "hyperneat/novelty > neat/novelty"]
+    assert cells[3]["claims"] == ["hyperneat/fitness > hyperneat/none", "hyperneat/novelty > hyperneat/none",
+                                  "hyperneat/none > neat/none"]
+    assert report.extended_cells(rows, runs=3) == []
+    assert report._extended([r for r in rows if r["method"] == "neat" and int(r["run"]) < 20]) == []  # 20 a cell
+
+
 def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_path):
     """A folder whose design predates a secondary claim (PPO's transfer) gains it while the folder has no run
     of its cells (it is still fixed before its runs); with such a run, or with any other difference, the

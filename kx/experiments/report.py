@@ -424,6 +424,43 @@ def still_to_run(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[dic
     return sorted(cells.values(), key=lambda c: rank[c["method"], c["phase"], c["target"], c["setup"]])
 
 
+def extended_cells(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[dict]:
+    """The cells holding more than the protocol's ``runs`` (extended where the power figure asked for more,
+    up to :data:`design.EXTEND_UP_TO`), in the plan's order: per cell its method, phase, target, setup, its
+    runs, and the keys of the primary claims whose comparison it enters (a source cell: none)."""
+    have = collections.Counter((r["method"], r["phase"], r["target"], r["setup"]) for r in rows)
+    rank = {(s.method, s.phase, s.target, s.setup): i for i, s in enumerate(t3.plan(runs=1))}
+    cells = sorted((c for c, n in have.items() if n > runs), key=lambda c: rank.get(c, len(rank)))
+    return [{"method": m, "phase": p, "target": t, "setup": s, "runs": have[m, p, t, s],
+             "claims": [] if p == "source" else [c.key for c in design.PRIMARY if (m, s) in (c.a, c.b)]}
+            for m, p, t, s in cells]
+
+
+def _extended(rows: list[dict]) -> list[str]:
+    cells = extended_cells(rows)
+    if not cells:
+        return []
+    targets = [c for c in cells if c["phase"] == "target"]
+    by_cell = collections.defaultdict(list)
+    for c in targets:
+        by_cell[c["method"], c["setup"], c["runs"]].append(c["target"])
+    sources = [c for c in cells if c["phase"] == "source"]
+    claims = list(dict.fromkeys(k for c in targets for k in c["claims"]))
+    text = (f"**Extended cells.** Past the protocol's {design.RUNS_PER_CELL} runs a cell (up to "
+            f"{design.EXTEND_UP_TO}, where the power figure at {design.RUNS_PER_CELL} runs could not decide a primary "
+            "comparison): " + "; ".join(f"{METHOD_NAMES[m]} {t3.SETUPS[s].label} in {', '.join(ts)} ({n} runs)"
+                                        for (m, s, n), ts in by_cell.items()))
+    if sources:
+        text += ("; with the sources of their transfer runs ("
+                 + ", ".join(f"{METHOD_NAMES[c['method']]} {c['setup']} {c['target']}: {c['runs']}" for c in sources)
+                 + ")")
+    if claims:
+        labels = {c.key: _label(c) for c in design.PRIMARY}
+        text += (f". They enter the primary comparisons {'; '.join(labels[k] for k in claims)}, whose tests here are a second look at "
+                 f"these cells after the one at {design.RUNS_PER_CELL} runs; their p-values are not adjusted for it")
+    return [text + ".", ""]
+
+
 def _still_to_run(rows: list[dict]) -> list[str]:
     cells = still_to_run(rows)
     if not cells:
@@ -514,7 +551,7 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
            "*Supported*: significant the paper's way; *contradicted*: significant against it; *not decided*: "
            "neither, with the estimate's direction and size, the power at the observed effect and the runs a cell "
            "80% would need.", ""]
-    md += _verdicts(pooled) + _efficiency_claim(eff)
+    md += _extended(rows) + _verdicts(pooled) + _efficiency_claim(eff)
     for measure in MEASURES:
         md += [f"### Primary family ({measure})", "",
                f"P(a > b): the probability of improvement averaged over the targets, with its stratified-bootstrap 95% "
