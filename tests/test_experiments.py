@@ -678,7 +678,8 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
     # sources; HyperNEAT's no-transfer 5v3 cell at 3
     rows = [row("neat", o, "source", "3v2", i) for o in ("fitness", "hybrid") for i in range(2)]
     rows += [row("neat", s, "target", t, i) for s in t3.METHOD_SETUPS["neat"] for t in t3.TARGETS for i in range(2)]
-    rows += [row("neat", "hybrid", "source", "3v2", 2)] + [row("neat", "novelty", "target", t, 2) for t in ("6v4", "4v3")]
+    rows += [row("neat", "hybrid", "source", "3v2", 2)]
+    rows += [row("neat", "novelty", "target", t, 2) for t in ("6v4", "4v3")]
     rows += [row("hyperneat", "none", "target", "5v3", i) for i in range(3)]
     cells = report.extended_cells(rows, runs=2)
     assert [(c["method"], c["phase"], c["target"], c["setup"], c["runs"]) for c in cells] == [

@@ -456,8 +456,9 @@ def _extended(rows: list[dict]) -> list[str]:
                  + ")")
     if claims:
         labels = {c.key: _label(c) for c in design.PRIMARY}
-        text += (f". They enter the primary comparisons {'; '.join(labels[k] for k in claims)}, whose tests here are a second look at "
-                 f"these cells after the one at {design.RUNS_PER_CELL} runs; their p-values are not adjusted for it")
+        text += (f". They enter the primary comparisons {'; '.join(labels[k] for k in claims)}, whose tests here "
+                 f"are a second look at these cells after the one at {design.RUNS_PER_CELL} runs; their p-values "
+                 "are not adjusted for it")
     return [text + ".", ""]
 
 
