@@ -501,6 +501,13 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     assert t3._Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows).eta()[1:] == (1, 0, 0)
     assert t3._Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
                         rows).eta_text().startswith("  protocol ETA unknown")
+    # two local processes share the machine: a run's recorded wall time is half its time on the clock, and
+    # the current group (2 x 2 x 120 s) has run 30 s of it
+    monkeypatch.setenv(t3.processes.ENV_LOCAL, "2")
+    shared = t3._Progress(lines.append, todo[:2], 3, 9, rows[:3])
+    shared.start(todo[0][0], "group")
+    clock[0] += 30.0
+    assert shared.eta() == (2 * 240.0 - 30.0 + 2 * 20.0, 3, 0, 0)
 
 
 def test_the_cli_refuses_bad_input_before_any_compute(tmp_path, capsys):

@@ -324,9 +324,10 @@ class _Progress:
     group's time) of the finished runs of its cell in results.csv, those of this process included, or
     where its cell has none, of its method, phase and task, or where that has none either, of its method
     and phase on the other tasks (said apart: the report's full-protocol estimate does the same); the
-    current group is charged what it has left of its runs' mean (at least nothing). A run with none of
-    these is not costed, and the line says how many such runs there are and on how many finished runs the
-    estimate rests. (Extrapolating this process's first generations instead underestimates: their
+    current group is charged what it has left of its runs' mean (at least nothing). A run's wall time is its
+    share of the machine, so where local processes share its cores (each with its own runs to go) this
+    process's runs take that many times as long on the clock. A run with none of these is not costed, and
+    the line says how many such runs there are and on how many finished runs the estimate rests. (Extrapolating this process's first generations instead underestimates: their
     episodes are short.)"""
 
     def __init__(self, log, todo: list[list[RunSpec]], done: int, total: int, rows: list[dict]):
@@ -354,6 +355,7 @@ class _Progress:
         """``(seconds, finished runs it rests on, runs costed at another task's runs, runs not costed)``
         for the groups still to go."""
         seconds, basis, elsewhere, unknown = 0.0, set(), 0, 0
+        sharers = processes.machine_sharers()  # wall_seconds are shares of the machine; the clock runs slower
         for i, chunk in enumerate(self.todo):
             cost = 0.0
             for spec in chunk:
@@ -363,7 +365,7 @@ class _Progress:
                     continue
                 elsewhere += len(kind) == 2
                 basis.update(self.runs[kind])
-                cost += sum(self.walls[j] for j in self.runs[kind]) / len(self.runs[kind])
+                cost += sharers * sum(self.walls[j] for j in self.runs[kind]) / len(self.runs[kind])
             seconds += max(cost - (time.perf_counter() - self.t0), 0.0) if i == 0 else cost
         return seconds, len(basis), elsewhere, unknown
 
