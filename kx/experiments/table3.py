@@ -327,8 +327,8 @@ class _Progress:
     current group is charged what it has left of its runs' mean (at least nothing). A run's wall time is its
     share of the machine, so where local processes share its cores (each with its own runs to go) this
     process's runs take that many times as long on the clock. A run with none of these is not costed, and
-    the line says how many such runs there are and on how many finished runs the estimate rests. (Extrapolating this process's first generations instead underestimates: their
-    episodes are short.)"""
+    the line says how many such runs there are and on how many finished runs the estimate rests.
+    (Extrapolating this process's first generations instead underestimates: their episodes are short.)"""
 
     def __init__(self, log, todo: list[list[RunSpec]], done: int, total: int, rows: list[dict]):
         self.log, self.todo, self.done, self.total = log, [list(c) for c in todo], done, total
