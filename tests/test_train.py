@@ -69,11 +69,12 @@ def _train_here(workdir, method, generations=GENERATIONS):
 
 
 _RUNS: dict = {}
-# The methods whose kill-and-resume test is in the default suite train their reference run with
-# `python -m kx.train` too: the killed and resumed processes then reuse its compiled (two-device)
-# programs, and the replays here on one device check them against another device count. The others
-# train here, where the replays reuse the programs of the run itself.
-SUBPROCESS = ("hyperneat",)
+# Every method's reference run trains here, in the test process (one device), where the tests' replays
+# reuse the programs of the run itself: HyperNEAT's trained in a `python -m kx.train` process (two devices)
+# while its kill-and-resume test was in the default suite, whose processes then reused those programs;
+# since that test went to the slow set, training it here saves about 11 s of the default suite (cold
+# cache). A method listed here trains through `python -m kx.train` instead.
+SUBPROCESS: tuple[str, ...] = ()
 
 
 @pytest.fixture(scope="session")
@@ -204,7 +205,7 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     assert {"neat": "species", "hyperneat": "species", "cma_es": "sigma", "ppo": "train return"}[method] in lines[-1]
 
 
-@pytest.mark.slow  # ~85 s; the default suite runs it on HyperNEAT's hybrid run (test_train_hyperneat.py)
+@pytest.mark.slow  # ~85 s; the default suite runs it on PPO's run (test_train_ppo.py)
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
     sigkill_then_resume(trained, tmp_path)
 

@@ -21,8 +21,9 @@ def trained(_runs):  # noqa: F811
 
 @pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
-    """In the default suite (NEAT's twin is slow): HyperNEAT's run selects on the novelty hybrid, so the
-    archive, the CPPN population and the metrics all come back bit for bit."""
+    """HyperNEAT's run selects on the novelty hybrid, so the archive, the CPPN population and the metrics
+    all come back bit for bit. The default suite's kill-and-resume test is PPO's (test_train_ppo.py), the
+    cheapest; the in-process resume of NEAT's hybrid run is test_train_novelty.py's."""
     sigkill_then_resume(trained, tmp_path)
 
 
