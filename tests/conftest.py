@@ -114,6 +114,8 @@ if os.environ.get("KX_TEST_PROFILE"):
         t0 = __import__("time").perf_counter()
         out = yield
         with open(os.environ["KX_TEST_PROFILE"], "a") as f:
-            f.write(json.dumps({"test": item.nodeid, "seconds": __import__("time").perf_counter() - t0,
+            f.write(json.dumps({"test": item.nodeid, "worker": os.environ.get("PYTEST_XDIST_WORKER", ""),
+                                "end": round(__import__("time").time(), 1),
+                                "seconds": __import__("time").perf_counter() - t0,
                                 **{k: round(v, 3) for k, v in _SPENT.items()}}) + "\n")
         return out

@@ -205,7 +205,7 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     assert {"neat": "species", "hyperneat": "species", "cma_es": "sigma", "ppo": "train return"}[method] in lines[-1]
 
 
-@pytest.mark.slow  # ~85 s; the default suite runs it on PPO's run (test_train_ppo.py)
+@pytest.mark.slow  # ~85 s; the default suite resumes runs in process (resume_here, test_train_novelty.py)
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
     sigkill_then_resume(trained, tmp_path)
 
@@ -248,6 +248,32 @@ def sigkill_then_resume(trained, tmp_path):
     if later:
         moved = sorted(int(p.name) for p in (run_dir / "abandoned").glob("*/checkpoints/*"))
         assert moved == later
+
+
+def resume_here(trained, tmp_path):
+    """A copy of the reference run's directory resumed from its earlier kept checkpoint (``kx.train --resume
+    --step 5``; it keeps two), in this process, reusing the programs the reference compiled here, ends bit
+    for bit where the reference ends: what :func:`sigkill_then_resume` checks, without the kill and the
+    two processes (a cold ``kx.train`` process compiles every program again)."""
+    reference, _, method = trained
+    run_dir = _copy(reference, tmp_path / "resumed")
+    step = GENERATIONS - 1
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = train_cli.main(["--workdir", str(run_dir), "--resume", "--step", str(step)])
+    assert rc == 0, err.getvalue()
+    assert "resuming" in out.getvalue() and f"after generation {step}" in out.getvalue()
+    a, meta_a = _final_state(reference)
+    b, meta_b = _final_state(run_dir)
+    assert meta_a == meta_b
+    _assert_same_state(a, b)
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in outputs.EXECUTION_FIELDS} for r in rows]  # noqa: E731
+    got, want = strip(_rows(run_dir)), strip(_rows(reference))
+    diff = [(i, k, r[k], w.get(k)) for i, (r, w) in enumerate(zip(got, want)) for k in r if r[k] != w.get(k)]
+    assert len(got) == len(want) == GENERATIONS and not diff, diff[:5]
+    # the checkpoint after it was recomputed, the reference's set aside rather than deleted
+    moved = sorted(int(p.name) for p in (run_dir / "abandoned").glob("*/checkpoints/*"))
+    assert moved == [GENERATIONS] and ckpt.steps(run_dir) == ckpt.steps(reference)
 
 
 def _err(capsys, argv, cli=train_cli):

@@ -6,6 +6,7 @@ import pytest
 from PIL import Image
 from test_train import (  # noqa: F401  (the tests, and the session cache of trained runs they use)
     _runs,
+    resume_here,
     sigkill_then_resume,
     test_corrupt_and_mismatched_checkpoints_are_refused_with_the_reason,
     test_evaluate_plays_the_validated_champion_on_test_trials_of_another_task,
@@ -19,11 +20,16 @@ def trained(_runs):  # noqa: F811
     return _runs("hyperneat")
 
 
+def test_resuming_from_a_checkpoint_ends_bit_for_bit_where_the_uninterrupted_run_does(trained, tmp_path):
+    """The CPPN population, the novelty archive and the metrics come back bit for bit (in this process)."""
+    resume_here(trained, tmp_path)
+
+
 @pytest.mark.slow  # moved out of the default suite to keep it under 7 minutes in a fresh clone
 def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
     """HyperNEAT's run selects on the novelty hybrid, so the archive, the CPPN population and the metrics
-    all come back bit for bit. The default suite's kill-and-resume test is PPO's (test_train_ppo.py), the
-    cheapest; the in-process resume of NEAT's hybrid run is test_train_novelty.py's."""
+    all come back bit for bit. The kill-and-resume tests are all in the slow set; the default suite
+    resumes HyperNEAT's run in process (above), and NEAT's hybrid run in test_train_novelty.py."""
     sigkill_then_resume(trained, tmp_path)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from test_train import (  # noqa: F401  (the tests, and the session cache of trained runs they use)
     _runs,
+    resume_here,
     sigkill_then_resume,
     test_run_directory_holds_config_metrics_plot_checkpoints_and_gif,
 )
@@ -30,10 +31,16 @@ def trained(_runs):  # noqa: F811
     return _runs("ppo")
 
 
-def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
+def test_resuming_from_a_checkpoint_ends_bit_for_bit_where_the_uninterrupted_run_does(trained, tmp_path):
     """The learner's whole state (weights, Adam's moments, the episodes in play and their returns, the
     counters) comes back from the checkpoint: the resumed run's checkpoints and metrics are the
     uninterrupted run's, bit for bit."""
+    resume_here(trained, tmp_path)
+
+
+@pytest.mark.slow  # ~40 s: two kx.train processes compile every program; the default suite resumes in process
+def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(trained, tmp_path):
+    """The same after a SIGKILL mid-run, in `python -m kx.train` processes."""
     sigkill_then_resume(trained, tmp_path)
 
 
