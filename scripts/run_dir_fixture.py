@@ -13,8 +13,9 @@ HyperNEAT's substrate, so the fixture is the suite's), on a CPU with AVX-512::
     PYTHONPATH=/tmp/kx_before python scripts/run_dir_fixture.py tests/fixtures/run_dirs.json
 
 Floats rounded by vector instructions can differ on a CPU with other vector extensions: the fixture
-records the CPU's (:func:`cpu_features`) and the XLA flags, and the test skips, saying why, where they
-differ (regenerate the fixture there as above).
+records the CPU's (:func:`cpu_features`) and the XLA flags, and the test skips, saying why, where the
+XLA flags or the extensions that decide the rounding (:data:`ROUNDING`: the vector width and fused
+multiply-add) differ (regenerate the fixture there as above).
 """
 
 from __future__ import annotations
@@ -46,6 +47,17 @@ def cpu_features() -> list[str]:
     except (OSError, StopIteration):
         return []
     return sorted(f for f in flags if f.startswith(("avx", "fma", "sse4")))
+
+
+#: the extensions that decide how XLA CPU rounds float32 (vector width, fused multiply-add); the others
+#: (sse4a, avx512_fp16, avx_vnni, ...) do not: the fixture written on an Intel CPU with AVX-512 (avx512_fp16,
+#: avx_vnni) is reproduced bit for bit on this project's AMD CPU with AVX-512 (sse4a), 2026-12-04
+ROUNDING = ("avx2", "avx512f", "fma")
+
+
+def rounding_features(cpu: list[str]) -> list[str]:
+    """Of a CPU's extensions (:func:`cpu_features`), those that decide how XLA CPU rounds float32."""
+    return [f for f in ROUNDING if f in cpu]
 
 
 def xla_flags() -> list[str]:

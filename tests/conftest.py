@@ -76,7 +76,8 @@ def np_tree(state):
 # 2026-12-03, three such files went last and one worker ran 60 s longer than the other).
 LONGEST_FIRST = ("test_train_ppo.py", "test_neat.py", "test_bev.py", "test_experiments.py", "test_transfer.py",
                  "test_gym.py", "test_neat_selection.py", "test_group.py", "test_env.py", "test_runtime.py",
-                 "test_train_hyperneat.py", "test_train.py", "test_shared_tables.py", "test_run_loop.py",
+                 "test_train_hyperneat.py", "test_train.py", "test_shared_tables.py", "test_run_dir_fixture.py",
+                 "test_run_loop.py",
                  "test_cppn.py", "test_evaluate.py", "test_evolve.py", "test_reference.py", "test_neat_readings.py",
                  "test_substrate.py", "test_run_dir.py", "test_novelty.py", "test_train_novelty.py", "test_config.py",
                  "test_neat_mutation.py", "test_devices.py", "test_render.py", "test_behaviour.py", "test_lanes.py",
