@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import make_state
 
 from kx.sim import env, policies
 from kx.sim import evaluate as ev
@@ -121,6 +122,27 @@ def test_heuristic_beats_hold_and_random():
          for n, m in policies.BASELINES.items()}
     assert f["hold"] < 0.01 and f["random"] < 0.01
     assert f["heuristic"] > 5 * max(f["hold"], f["random"]) and f["heuristic"] < 0.9
+
+
+@pytest.mark.parametrize("keepers, takers, min_margin, want", [
+    # H (5,5) holds, pressed by a taker one king move away. To A (9,5) the takers at (6,6) and (7,7) reach
+    # the lane exactly in time (margin 0: cheb(T, H + s u) - s/2 is 0 at s = 2 and s = 4); to B (9,9) the
+    # taker at (6,6) is on the lane (margin -1/sqrt2): A gets the ball
+    ([(5, 5), (9, 5), (9, 9)], [(6, 6), (7, 7)], 0.0, 1),
+    # ... unless margins of 0 are not enough: hold
+    ([(5, 5), (9, 5), (9, 9)], [(6, 6), (7, 7)], 2e-4, 0),
+    # B (1,5), away from both takers (margin 1, at s = 0), is more open than A: B
+    ([(5, 5), (9, 5), (1, 5)], [(6, 6), (7, 7)], 0.0, 2),
+    # A (9,5) and B (5,9) both at margin 0: the first in keeper order, whichever it is
+    ([(5, 5), (9, 5), (5, 9)], [(6, 6), (7, 7)], 0.0, 1),
+    ([(5, 5), (5, 9), (9, 5)], [(6, 6), (7, 7)], 0.0, 1),
+    # no taker within 2 king moves: hold
+    ([(5, 5), (9, 5), (1, 5)], [(8, 8), (12, 2)], 0.0, 0),
+])
+def test_heuristic_decisions_hand_computed(keepers, takers, min_margin, want):
+    state = make_state(keepers, takers, 0)
+    got = jax.jit(policies.heuristic(CFG, min_margin=min_margin).apply)(None, state, None)
+    assert int(got) == want
 
 
 def test_rollout_stacks_states():

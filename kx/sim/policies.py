@@ -78,6 +78,18 @@ def random_policy(config: KeepAwayConfig) -> Policy:
     return Policy("random", apply, stochastic=True)
 
 
+#: How far apart two of the heuristic's margins must be to count as different. The margins are float32
+#: sums like ``|a - s u_x| - s / 2`` and are often exactly 0 or exactly equal between teammates; a platform
+#: that rounds them otherwise (a fused multiply-add, as GPU compilers form by default) puts such a 0 a hair
+#: below 0, where the policy held and lost the ball: on an H200 the heuristic's mean fitness on kx.bench
+#: sim's 4500 states was 0.0150 against this CPU's 0.0235, and counting the zeros unsafe here gives 0.0106
+#: (docs/benchmarks.md, "On a GPU"). Margins are sums of a few cells, so float32 rounds them by about 1e-6;
+#: 1e-4 is far above that and far below any real difference of cells. On this CPU it changed the outcome
+#: of 0.6-2% of 54,000 episodes of every task, where equal margins had been told apart by their last bit
+#: (each task's mean fitness within 0.0004 of before; 2026-12-04).
+MARGIN_TOL = 1e-4
+
+
 @functools.lru_cache(maxsize=None)
 def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.0) -> Policy:
     """Hold until a taker is within ``threshold`` king moves, then pass to the most open teammate.
@@ -88,7 +100,8 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
     agent speed 1). The margin is ``min over takers and s in [0, |pass|] of cheb(T, H + s u) - s / 2``,
     computed exactly: the function is convex and piecewise linear in s, so its minimum lies at one of
     at most six breakpoints. The holder passes to the teammate with the largest margin if that margin
-    is at least ``min_margin``, and holds otherwise.
+    is at least ``min_margin``, and holds otherwise; margins within :data:`MARGIN_TOL` of each other, or
+    of ``min_margin``, count as equal (the first teammate of equal margins, in keeper order, gets the ball).
     """
     speed_ratio = config.agent_speed / config.ball_speed
 
@@ -142,9 +155,9 @@ def heuristic(config: KeepAwayConfig, threshold: int = 2, min_margin: float = 0.
             if best is None:
                 best, target = margin, i
             else:
-                better = margin > best
+                better = margin > best + MARGIN_TOL
                 best, target = jnp.where(better, margin, best), jnp.where(better, i, target)
-        safe = best >= min_margin
+        safe = best >= min_margin - MARGIN_TOL
         return jnp.where(pressed & safe, target, h)
 
     return Policy("heuristic", apply)
