@@ -210,6 +210,21 @@ def test_sigkill_then_resume_ends_bit_for_bit_where_an_uninterrupted_run_does(tr
     sigkill_then_resume(trained, tmp_path)
 
 
+def _assert_ends_as(run_dir, reference):
+    """``run_dir`` ends where ``reference`` does: its final run state and checkpoint metadata bit for bit,
+    and every metrics row but how the generations were executed (the timings, and the live share of the
+    lane-steps, which depends on how the lanes were split over devices: the reference may have run in this
+    process, on one)."""
+    a, meta_a = _final_state(reference)
+    b, meta_b = _final_state(run_dir)
+    assert meta_a == meta_b
+    _assert_same_state(a, b)
+    strip = lambda rows: [{k: v for k, v in r.items() if k not in outputs.EXECUTION_FIELDS} for r in rows]  # noqa: E731
+    got, want = strip(_rows(run_dir)), strip(_rows(reference))
+    diff = [(i, k, r[k], w.get(k)) for i, (r, w) in enumerate(zip(got, want)) for k in r if r[k] != w.get(k)]
+    assert len(got) == len(want) == GENERATIONS and not diff, diff[:5]
+
+
 def sigkill_then_resume(trained, tmp_path):
     """A run killed mid-way and resumed from checkpoint 2 ends bit for bit where ``trained`` ends."""
     reference, _, method = trained
@@ -233,16 +248,7 @@ def sigkill_then_resume(trained, tmp_path):
                              timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "resuming" in resumed.stdout and "after generation 2" in resumed.stdout
-    a, meta_a = _final_state(reference)
-    b, meta_b = _final_state(run_dir)
-    assert meta_a == meta_b
-    _assert_same_state(a, b)
-    # how the generations were executed aside: the timings, and the live share of the lane-steps, which
-    # depends on how the lanes were split over devices (the reference may have run in this process, on one)
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in outputs.EXECUTION_FIELDS} for r in rows]  # noqa: E731
-    got, want = strip(_rows(run_dir)), strip(_rows(reference))
-    diff = [(i, k, r[k], w.get(k)) for i, (r, w) in enumerate(zip(got, want)) for k in r if r[k] != w.get(k)]
-    assert len(got) == len(want) and not diff, diff[:5]
+    _assert_ends_as(run_dir, reference)
     # checkpoints written after 2 by the killed run were set aside, not deleted
     later = [s for s in have if s > 2]
     if later:
@@ -263,14 +269,7 @@ def resume_here(trained, tmp_path):
         rc = train_cli.main(["--workdir", str(run_dir), "--resume", "--step", str(step)])
     assert rc == 0, err.getvalue()
     assert "resuming" in out.getvalue() and f"after generation {step}" in out.getvalue()
-    a, meta_a = _final_state(reference)
-    b, meta_b = _final_state(run_dir)
-    assert meta_a == meta_b
-    _assert_same_state(a, b)
-    strip = lambda rows: [{k: v for k, v in r.items() if k not in outputs.EXECUTION_FIELDS} for r in rows]  # noqa: E731
-    got, want = strip(_rows(run_dir)), strip(_rows(reference))
-    diff = [(i, k, r[k], w.get(k)) for i, (r, w) in enumerate(zip(got, want)) for k in r if r[k] != w.get(k)]
-    assert len(got) == len(want) == GENERATIONS and not diff, diff[:5]
+    _assert_ends_as(run_dir, reference)
     # the checkpoint after it was recomputed, the reference's set aside rather than deleted
     moved = sorted(int(p.name) for p in (run_dir / "abandoned").glob("*/checkpoints/*"))
     assert moved == [GENERATIONS] and ckpt.steps(run_dir) == ckpt.steps(reference)
