@@ -80,13 +80,14 @@ def random_policy(config: KeepAwayConfig) -> Policy:
 
 #: How far apart two of the heuristic's margins must be to count as different. The margins are float32
 #: sums like ``|a - s u_x| - s / 2`` and are often exactly 0 or exactly equal between teammates; a platform
-#: that rounds them otherwise (a fused multiply-add, as GPU compilers form by default) puts such a 0 a hair
-#: below 0, where the policy held and lost the ball: on an H200 the heuristic's mean fitness on kx.bench
-#: sim's 4500 states was 0.0150 against this CPU's 0.0235, and counting the zeros unsafe here gives 0.0106
-#: (docs/benchmarks.md, "On a GPU"). Margins are sums of a few cells, so float32 rounds them by about 1e-6;
-#: 1e-4 is far above that and far below any real difference of cells. On this CPU it changed the outcome
-#: of 0.6-2% of 54,000 episodes of every task, where equal margins had been told apart by their last bit
-#: (each task's mean fitness within 0.0004 of before; 2026-12-04).
+#: that rounds them otherwise (a fused multiply-add, as GPU compilers form by default) can put such a 0 a
+#: hair below 0, where the policy held and lost the ball: on an H200 the heuristic's mean fitness on
+#: kx.bench sim's 4500 states was 0.0150 against this CPU's 0.0235, and counting the zeros unsafe here
+#: gives 0.0106 (docs/benchmarks.md, "On a GPU"; that this is what the H200 did is not yet checked).
+#: Margins are sums of a few cells, so float32 rounds them by about 1e-6; 1e-4 is far above that and far
+#: below any real difference of cells. On this CPU it changed the outcome of 0.6-2% of 54,000 episodes of
+#: every task, where equal margins had been told apart by their last bit (each task's mean fitness within
+#: 0.0004 of before; 2026-12-04).
 MARGIN_TOL = 1e-4
 
 
