@@ -113,9 +113,8 @@ def compare(got: dict, want: dict) -> list[str]:
     for k in ("episodes", "seed", "s_max"):
         if got[k] != want[k]:
             lines.append(f"{k}: {got[k]} here, {want[k]} there")
-    for stage in ("starts",):
-        diff = [f for f in want[stage] if got[stage].get(f) != want[stage][f]]
-        lines.append(f"starts: {'differ in ' + ', '.join(diff) if diff else 'the same'}")
+    diff = [f for f in want["starts"] if got["starts"].get(f) != want["starts"][f]]
+    lines.append(f"starts: {'differ in ' + ', '.join(diff) if diff else 'the same'}")
     for k in ("noise_words", "first_decision", "kick_noise_t0_3"):
         lines.append(f"{k}: {'the same' if got[k] == want[k] else 'differ'}")
     first = next(((a, b) for a, b in zip(got["lockstep"]["blocks"], want["lockstep"]["blocks"]) if a != b), None)

@@ -46,15 +46,6 @@ METHODS = {
 NEAT_LEARNERS = ("neat", "hyperneat")  # NEAT's own metrics and genome checks
 
 
-def _train(workdir, method, generations=GENERATIONS):
-    """``python -m kx.train``, which splits the lanes over two devices (one per core)."""
-    proc = subprocess.run([sys.executable, "-m", "kx.train", "--workdir", str(workdir), *METHODS[method],
-                           f"--config.generations={generations}"], cwd=REPO, capture_output=True, text=True,
-                          timeout=600)
-    assert proc.returncode == 0, proc.stderr
-    return proc.stdout
-
-
 def _train_here(workdir, method, generations=GENERATIONS):
     """``kx.train``'s ``main`` in this process, on its one device: the programs it compiles then serve
     the tests' own replays of the run here."""
@@ -69,12 +60,9 @@ def _train_here(workdir, method, generations=GENERATIONS):
 
 
 _RUNS: dict = {}
-# Every method's reference run trains here, in the test process (one device), where the tests' replays
-# reuse the programs of the run itself: HyperNEAT's trained in a `python -m kx.train` process (two devices)
-# while its kill-and-resume test was in the default suite, whose processes then reused those programs;
-# since that test went to the slow set, training it here saves about 11 s of the default suite (cold
-# cache). A method listed here trains through `python -m kx.train` instead.
-SUBPROCESS: tuple[str, ...] = ()
+# Every method's reference run trains in the test process (one device), where the tests' replays reuse
+# the programs of the run itself (HyperNEAT's trained in a `python -m kx.train` process until 2026-12-04,
+# for a kill-and-resume test of the default suite that has since gone to the slow set).
 
 
 @pytest.fixture(scope="session")
@@ -85,8 +73,7 @@ def _runs(tmp_path_factory):
     def get(method):
         if method not in _RUNS:
             run_dir = tmp_path_factory.mktemp("runs") / method
-            train = _train if method in SUBPROCESS else _train_here
-            _RUNS[method] = (run_dir, train(run_dir, method), method)
+            _RUNS[method] = (run_dir, _train_here(run_dir, method), method)
         return _RUNS[method]
     return get
 
