@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import os
 import pathlib
+import time
+import warnings
 
 
 def setup(host_devices: int | None = None) -> None:
@@ -45,7 +47,11 @@ def setup(host_devices: int | None = None) -> None:
 MAPS_REPORT = 0.5  #: share of vm.max_map_count from which a process reports its memory maps
 MAPS_RELEASE = 0.75  #: share from which it releases its compiled programs
 
+#: how often, at most, :func:`guard_maps` reads the process's maps (reading 60,000 of them takes milliseconds)
+MAPS_GUARD_SECONDS = 10.0
+
 _reported = False
+_guarded_at = float("-inf")
 
 
 def memory_maps() -> tuple[int, int] | None:
@@ -99,3 +105,23 @@ def check_maps() -> str | None:
                 f"{advice[0].upper()}{advice[1:]}")
     _reported = False
     return None
+
+
+def guard_maps() -> None:
+    """The guard of a process that evaluates outside the run loop (a script or a notebook calling
+    :func:`kx.sim.evaluate.evaluate` for many tasks or policies): at most every :data:`MAPS_GUARD_SECONDS`,
+    once the maps reach :data:`MAPS_RELEASE` of the limit, :func:`check_maps` releases the compiled programs
+    and its message comes as a ``RuntimeWarning``, rather than the next compilation failing in LLVM. The run
+    loop's own check (once a generation, in its log) reports from :data:`MAPS_REPORT` on, before this
+    acts."""
+    global _guarded_at
+    now = time.monotonic()
+    if now - _guarded_at < MAPS_GUARD_SECONDS:
+        return
+    _guarded_at = now
+    got = memory_maps()
+    if got is None or got[0] < MAPS_RELEASE * got[1]:
+        return
+    msg = check_maps()
+    if msg:
+        warnings.warn(msg, RuntimeWarning, stacklevel=3)

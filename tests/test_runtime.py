@@ -58,3 +58,38 @@ def test_the_guard_reports_near_the_limit_and_releases_before_it(monkeypatch):
         assert bool(released) == release, count
     monkeypatch.setattr(runtime, "memory_maps", lambda: None)
     assert runtime.check_maps() is None  # a system that does not tell: nothing to say
+
+
+def test_evaluate_guards_a_script_that_nears_the_limit(monkeypatch):
+    """kx.sim.evaluate.evaluate outside the run loop (a script of many tasks once died in LLVM): near the limit
+    it releases the compiled programs and warns, at most every MAPS_GUARD_SECONDS, and plays the same episodes."""
+    import jax
+    import numpy as np
+
+    from kx.sim import env
+    from kx.sim import evaluate as ev
+    from kx.sim.policies import BASELINES
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+    config, params = KeepAwayConfig(), KeepAwayParams(max_iterations=60)
+    starts = env.reset_batch(jax.random.key(3), 4, params, config)
+
+    def play():
+        return np.asarray(ev.evaluate(BASELINES["heuristic"](config), None, starts, params, config,
+                                      key=jax.random.key(5)).fitness)
+
+    released = []
+    monkeypatch.setattr(runtime, "release_compiled", lambda: released.append(True))
+    monkeypatch.setattr(runtime, "_reported", False)
+    monkeypatch.setattr(runtime, "_guarded_at", float("-inf"))
+    monkeypatch.setattr(runtime, "memory_maps", lambda: (30_000, 65530))  # below MAPS_RELEASE: quiet
+    quiet = play()
+    assert not released
+    monkeypatch.setattr(runtime, "_guarded_at", float("-inf"))
+    monkeypatch.setattr(runtime, "memory_maps", lambda: (50_000, 65530))
+    with pytest.warns(RuntimeWarning, match="released the process's compiled programs"):
+        near = play()
+    assert released == [True]
+    np.testing.assert_array_equal(near, quiet)
+    play()  # within MAPS_GUARD_SECONDS of the last look: not read again
+    assert released == [True]

@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from kx import runtime
 from kx.sim import env, lanes, ops
 from kx.sim.policies import Policy, Shared
 from kx.sim.types import EpisodeStats, KeepAwayConfig, KeepAwayParams, State
@@ -298,6 +299,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       ``[R, P, T]`` (``behaviour`` ``[3, R, P, T]``).
     """
     env.check(config, params)
+    runtime.guard_maps()  # before this evaluation compiles anything: a script's guard (the run loop has its own)
     if key is None:
         if policy.stochastic or float(jnp.asarray(params.kick_noise_deg)) > 0:
             raise ValueError("key: a key is needed for kick noise and for stochastic policies")
