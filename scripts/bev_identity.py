@@ -44,6 +44,7 @@ FIXTURE = pathlib.Path(__file__).resolve().parent.parent / "kx" / "bench" / "dat
 def real_table(task: str):
     """The fixture population's substrates through the encoding (as the run loop builds them), and the
     encoding's image."""
+    import jax
     import numpy as np
 
     from kx.evolve import config as cfg_lib
@@ -54,7 +55,8 @@ def real_table(task: str):
     trainer = run_lib.Trainer(cfg)
     data = np.load(FIXTURE)
     population = Genome(**{f: data[f] for f in Genome.__dataclass_fields__})
-    return trainer.encoding.policy_params(population)
+    # on one device, as the code before made it (the run loop's table comes with its rows split over the devices)
+    return jax.device_put(trainer.encoding.policy_params(population), jax.devices()[0])
 
 
 def logical(table):

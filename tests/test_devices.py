@@ -52,6 +52,40 @@ SHARED_SCRIPT = textwrap.dedent("""
 """)
 
 
+# A shared table whose rows come split over the two devices (kx.sim.lanes.put_rows, as HyperNEAT's substrates
+# are built): each device reads the rows its own lanes play, and the episodes are those of one device; and
+# HyperNEAT's substrates built split over the devices are those built on one, bit for bit.
+ROWS_SCRIPT = textwrap.dedent("""
+    import jax, numpy as np
+    assert jax.local_device_count() == 2
+    from kx.hyperneat import presets, substrate
+    from kx.neat import algorithm
+    from kx.sim import env, lanes, observe, policies, evaluate as ev
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+    cfg, params = KeepAwayConfig(), KeepAwayParams(max_iterations=120)
+    starts = env.reset_batch(jax.random.key(10), 50, params, cfg)
+    n = observe.n_inputs("fixed", cfg) * 3 + 3
+    table = policies.linear_params(jax.random.normal(jax.random.key(11), (12, n)), cfg)
+    split = lanes.put_rows(table, 2)
+    assert lanes.rows_split(split, 2) and not lanes.rows_split(table, 2)
+    pol = policies.linear_policy(cfg, shared=True)
+    c2 = ev.EvalCounters()
+    one = ev.evaluate(pol, table, starts, params, cfg, devices=1, key=jax.random.key(12))
+    two = ev.evaluate(pol, split, starts, params, cfg, devices=2, key=jax.random.key(12), counters=c2)
+    assert len(c2.widths) >= 3, c2.widths
+    for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
+        np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
+    ncfg, nparams = presets.cppn(n_inputs=5)
+    pop = jax.tree.map(lambda a: a[:4], algorithm.NEAT(ncfg).init(jax.random.key(3), nparams).population)
+    sub = substrate.Substrate(distance_input=True)
+    alone, halves = substrate.build(pop, ncfg, sub), substrate.build(pop, ncfg, sub, devices=2)
+    assert lanes.rows_split(halves, 2)
+    for k in alone:
+        np.testing.assert_array_equal(np.asarray(alone[k]).view(np.int32), np.asarray(halves[k]).view(np.int32))
+    print("ok", list(c2.widths))
+""")
+
+
 XOR_SCRIPT = textwrap.dedent("""
     import jax, numpy as np
     assert jax.local_device_count() == 2
@@ -82,12 +116,12 @@ def _two_device_process(script):
 
 
 def test_two_devices_equal_one(tmp_path):
-    _two_device_process(SCRIPT)
+    """The lanes split over two devices, and a shared table's rows split over them (one process for both)."""
+    _two_device_process(SCRIPT + ROWS_SCRIPT)
 
 
-# The default suite checks shared tables on two devices against one through HyperNEAT's run tests
-# (test_train_hyperneat.py): the run `python -m kx.train` trains on two devices is replayed in the test
-# process on one (generation 0's fitness, its champion's validation and the first step's row).
+# A table whole on each of two devices (how a shared table goes when its rows are not split evenly); the
+# default suite has the split rows (above)
 @pytest.mark.slow
 def test_shared_table_on_two_devices_equals_one():
     _two_device_process(SHARED_SCRIPT)

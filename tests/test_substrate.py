@@ -150,3 +150,10 @@ def test_the_batched_query_equals_each_cppn_network_on_every_link():
         assert np.all(np.abs(o[1].reshape(400, 400)[flip]) < 1e-5)
         np.testing.assert_allclose(np.where(flip, 0, got), np.where(flip, 0, w), atol=2e-5)
         np.testing.assert_allclose(out["b"][gi], 5 * np.clip(np.diagonal(o[2].reshape(400, 400)), -1, 1), atol=2e-5)
+    # the query keeping only the hidden rows the population uses (as the run loop builds it) gives the same
+    # substrates as reals (a zero's sign at most differs: assert_array_equal counts -0.0 == 0.0)
+    rows = sb.hidden_rows(pop, CFG)
+    assert hidden.max() <= rows < CFG.n_hidden
+    trimmed = sb.build(pop, CFG, s, rows=rows)
+    for k in out:
+        np.testing.assert_array_equal(np.asarray(trimmed[k]), np.asarray(out[k]), err_msg=k)

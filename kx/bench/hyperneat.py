@@ -94,7 +94,8 @@ def _lanes(trainer, population, starts):
     from kx.sim.policies import Shared
 
     enc = trainer.encoding
-    params = enc.policy_params(population)
+    # on one device (HyperNEAT's table comes with its rows split over the devices, for the evaluator)
+    params = jax.device_put(enc.policy_params(population), jax.devices()[0])
     n_pol = jax.tree.leaves(params)[0].shape[0]
     n_trials = starts.holder.shape[-1]
     lane = jnp.arange(n_pol * n_trials, dtype=jnp.int32)

@@ -161,7 +161,8 @@ def _lane_params(trainer, population, n_trials: int):
     from kx.sim.policies import Shared
 
     enc = trainer.encoding
-    params = enc.policy_params(population)
+    # on one device (HyperNEAT's table comes with its rows split over the devices, for the evaluator)
+    params = jax.device_put(enc.policy_params(population), jax.devices()[0])
     n_pol = jax.tree.leaves(params)[0].shape[0]
     lane = jnp.arange(n_pol * n_trials, dtype=jnp.int32)
     if enc.policy.shared:

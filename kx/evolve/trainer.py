@@ -273,6 +273,14 @@ def _take_trials(starts, runs, *, trials):
     return jax.tree.map(lambda a: jnp.take(a, cols, axis=-1), starts)
 
 
+def _concat_runs(results):
+    """:class:`EpisodeStats` of several calls' runs (each ``[r, P, T]``, ``behaviour`` ``[3, r, P, T]``), one
+    after another."""
+    run_axis = lambda f: 1 if f == "behaviour" else 0  # noqa: E731
+    return type(results[0])(**{f: jnp.concatenate([getattr(p, f) for p in results], axis=run_axis(f))
+                               for f in results[0].__dataclass_fields__})
+
+
 @jax.jit
 def _reorder_runs(stats, order):
     """:class:`EpisodeStats` ``[R, P, T]`` (``behaviour`` ``[3, R, P, T]``) with its runs in ``order``."""
@@ -376,10 +384,13 @@ class RunGroup:
         ...]``, k runs): all of them, but on a CPU only as many as keep a shared table within
         :data:`CPU_TABLE_BYTES`."""
         n = jax.tree.leaves(params)[0].shape[0]
+        return self._runs_per_call(n, sum(a.nbytes for a in jax.tree.leaves(params)) // n)
+
+    def _runs_per_call(self, n: int, per_run: int) -> int:
+        """:meth:`runs_per_call` of ``n`` runs whose policy parameters take ``per_run`` bytes a run."""
         if not self.encoding.policy.shared or jax.devices()[0].platform != "cpu":
             self.calls_note = f"every run's episodes in one evaluator call ({n} runs)"
             return n
-        per_run = sum(a.nbytes for a in jax.tree.leaves(params)) // n
         c = int(min(n, max(1, CPU_TABLE_BYTES // max(per_run, 1))))
         if c == n:
             self.calls_note = (f"every run's episodes in one evaluator call ({n} runs; their shared policy tables, "
@@ -407,15 +418,38 @@ class RunGroup:
             parts.append((runs, enc.policy_params(_take_runs(population, runs.astype(np.int32)))))
         return parts
 
+    def _builds_run_by_run(self) -> bool:
+        """Whether the encoding's shared table is built run by run anyway (not vmapped over runs): then a call
+        that plays one run (:meth:`runs_per_call`) gets its run's table as the build left it (its rows split
+        over the devices where the build did so: :func:`kx.sim.lanes.rows_split`), not first stacked with the
+        others' and sliced again (two copies of 96 MB a run for HyperNEAT's 150 CPPNs)."""
+        enc = self.encoding
+        return enc.policy.shared and not enc.policy_params_leading_axes and "policy_params" not in enc.vmap_exact
+
     def evaluate(self, population, starts, keys, counters=None):
         """Run ``r``'s individuals of ``population`` (``[R, P, ...]``) on its start states ``starts[..., r*T:
         (r+1)*T]`` with its key ``keys[r]`` (:class:`EpisodeStats` [R, P, T]): every run in one evaluator
         call, or in calls of :meth:`runs_per_call` runs of one part of :meth:`_param_parts` (each run's
-        episodes are the same either way: lanes never interact)."""
+        episodes are the same either way: lanes never interact); a shared table built run by run
+        (:meth:`_builds_run_by_run`) and played one run a call goes to its call as it was built."""
         n = len(self)
         n_trials = starts.holder.shape[-1] // n
         order, results = [], []
-        for runs, params in self._param_parts(population):
+        parts = None
+        if self._builds_run_by_run():
+            enc = self.encoding
+            first = enc.policy_params(_take(population, 0))
+            if self._runs_per_call(n, sum(a.nbytes for a in jax.tree.leaves(first))) == 1:
+                for r in range(n):
+                    run_starts = starts if n == 1 else _take_trials(starts, np.array([r], np.int32), trials=n_trials)
+                    params = first if r == 0 else enc.policy_params(_take(population, r))
+                    results.append(ev.evaluate(enc.policy, params, run_starts, self.exp.sim_params, self.exp.sim,
+                                               key=keys[r:r + 1], counters=counters))
+                return results[0] if n == 1 else _concat_runs(results)
+            # what over_runs gives, run 0's table not built twice
+            parts = [(np.arange(n), stack_states([first] + [enc.policy_params(_take(population, r))
+                                                            for r in range(1, n)]))]
+        for runs, params in parts or self._param_parts(population):
             if len(runs) < n:  # the part's runs' start states and keys
                 part_starts = _take_trials(starts, runs.astype(np.int32), trials=n_trials)
                 part_keys = keys[runs]
@@ -430,9 +464,7 @@ class RunGroup:
             order.extend(runs.tolist())
         if len(results) == 1:
             return results[0]
-        run_axis = lambda f: 1 if f == "behaviour" else 0  # noqa: E731 (behaviour is [3, R, P, T])
-        stats = type(results[0])(**{f: jnp.concatenate([getattr(p, f) for p in results], axis=run_axis(f))
-                                    for f in results[0].__dataclass_fields__})
+        stats = _concat_runs(results)
         if order == list(range(n)):
             return stats
         back = np.argsort(np.asarray(order)).astype(np.int32)  # the runs in their own order again

@@ -186,10 +186,10 @@ def rungs(ladder: list[int]) -> list[int]:
         out.append(nxt[0])
 
 
-@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "width", "layout", "n_groups", "impl"),
-                   compiler_options=LOOP_COMPILER_OPTIONS)
+@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "width", "layout", "n_groups", "impl",
+                                             "table_rows"), compiler_options=LOOP_COMPILER_OPTIONS)
 def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, config, n_dev, width, layout, n_groups,
-                         impl):
+                         impl, table_rows=False):
     """One rung: every lane stepped until the live ones fit ``width`` (0: until every episode has ended),
     then on each device the ``width // n_dev`` of its lanes that come first when live lanes are put
     before finished ones (lanes never move between devices). Each device stops on its own count (a
@@ -198,12 +198,16 @@ def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, conf
     (:class:`kx.sim.lanes.Layout`), a per-lane policy's parameters beside them as they are (``lane_params``, else
     None: packed, NEAT's networks were copied once more per rung and its evaluation took 15% longer);
     ``scalars`` holds the params, the run groups' size and their ``n_groups`` keys of PRNG ``impl``
-    (:func:`kx.sim.lanes.pack_scalars`). Returns the compacted lanes and parameters (none for the last rung), the
-    counters of every lane before the compaction and its lane id, stacked ``[7, lanes]``
-    (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the iterations run
-    and the live lanes ``[n_dev, 2]``."""
+    (:func:`kx.sim.lanes.pack_scalars`). A shared ``table`` is whole on every device, or with ``table_rows``
+    its rows are split over the devices (:func:`kx.sim.lanes.rows_split`: each device holds the rows its
+    lanes play, and a lane's row index is made local to them). Returns the compacted lanes and parameters
+    (none for the last rung), the counters of every lane before the compaction and its lane id, stacked
+    ``[7, lanes]`` (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the
+    iterations run and the live lanes ``[n_dev, 2]``."""
     def local(rows, lane_params, scalars, table):
         state, index, noise_word, lane_id = lanes.unpack(rows, layout)
+        if table_rows:  # this device's rows of the table: the lanes' rows, counted from its first
+            index = index - jax.lax.axis_index("lanes") * jax.tree.leaves(table)[0].shape[0]
         lane_params = index if policy.shared else lane_params
         params, group_size, keys = lanes.unpack_scalars(scalars, n_groups, impl)
         state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
@@ -220,7 +224,8 @@ def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, conf
 
     if n_dev == 1:
         return local(rows, lane_params, scalars, table)
-    in_specs = lanes.lane_specs((rows, lane_params)) + lanes.replicated_specs((scalars, table))
+    in_specs = (lanes.lane_specs((rows, lane_params)) + (lanes.replicated_specs(scalars),)
+                + ((lanes.row_specs if table_rows else lanes.replicated_specs)(table),))
     out_specs = (lanes.lane_specs(rows), lanes.PER_DEVICE)
     if width:
         out_specs = lanes.lane_specs((rows, lane_params)) + out_specs
@@ -278,7 +283,9 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
       policy_params: a pytree with a leading axis of G parameter sets, or ``None`` (G = 1). Per lane
         (``policy.shared`` false) each set is copied into the lanes that play it; for a shared policy
         the pytree is the table every lane reads (:class:`kx.sim.policies.Shared`), never copied per
-        lane. Either way it is an argument of the compiled calls: new values do not recompile.
+        lane: whole on every device, or, if its rows come split evenly over the devices
+        (:func:`kx.sim.lanes.put_rows`), each device reads the rows its lanes play where they are. Either
+        way it is an argument of the compiled calls: new values do not recompile.
       starts: T start states, batch-last (``[.., T]``), e.g. from :func:`kx.sim.env.reset_batch`.
       params, config: the world.
       key: needed for kick noise and stochastic policies: evaluator noise (the kicks) draws from
@@ -324,10 +331,17 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # split the lanes once; in any other layout every sharded call would reshard them
     rows, lane_params = lanes.put_lanes((rows, lane_params), n_dev)
     layout = lanes.lane_layout(starts, policy.shared)
-    # what every rung reads besides its lanes (a shared table whole, replicated), on the devices once
-    # rather than sent with every rung
+    # what every rung reads besides its lanes, on the devices once rather than sent with every rung: a shared
+    # table whole on each device (replicated), or, where it comes with its rows split over the devices and
+    # they divide evenly (HyperNEAT's substrates, built so: kx.hyperneat.substrate.build), as it is: each
+    # device's lanes play exactly its rows (the lanes are policy-major and stay on their device), and a copy
+    # of the whole table onto each device (96 MB, about 55 ms on 2 CPU devices) is saved
+    table_rows = policy.shared and n_sets % n_dev == 0 and lanes.rows_split(policy_params, n_dev)
     table, scalars = lanes.put_replicated(
-        (policy_params if policy.shared else None, lanes.pack_scalars(params, group_size, keys)), n_dev)
+        (policy_params if policy.shared and not table_rows else None, lanes.pack_scalars(params, group_size, keys)),
+        n_dev)
+    if table_rows:
+        table = policy_params
     # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
     # (a few integers per lane) once, at the end, in one transfer.
     chain, impl = rungs(ladder), str(jax.random.key_impl(keys))
@@ -335,7 +349,8 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     for k in range(len(chain)):
         nxt = chain[k + 1] if k + 1 < len(chain) else 0
         *compacted, record, ran = _advance_and_compact(rows, lane_params, scalars, table, policy=policy, config=config,
-                                                   n_dev=n_dev, width=nxt, layout=layout, n_groups=n_groups, impl=impl)
+                                                   n_dev=n_dev, width=nxt, layout=layout, n_groups=n_groups, impl=impl,
+                                                   table_rows=table_rows)
         rows, lane_params = compacted if compacted else (None, None)
         records.append(record)
         progress.append(ran)

@@ -175,6 +175,9 @@ def live_first(done: jax.Array, k: int) -> jax.Array:
 REPLICATED = jax.sharding.PartitionSpec()
 # per device results stacked along a leading axis, one row per device ([n_dev, ...])
 PER_DEVICE = jax.sharding.PartitionSpec("lanes", None)
+# a shared table's rows (its leading axis: the parameter sets) split over the mesh, each device holding
+# the rows its own lanes play (:func:`rows_split`)
+TABLE_ROWS = jax.sharding.PartitionSpec("lanes")
 
 
 def mesh(n_dev: int) -> jax.sharding.Mesh:
@@ -190,6 +193,34 @@ def lane_specs(tree):
 def replicated_specs(tree):
     """Every leaf of ``tree`` whole on every device."""
     return jax.tree.map(lambda _: REPLICATED, tree)
+
+
+def row_specs(tree):
+    """Every leaf's rows (its leading axis) split over the mesh."""
+    return jax.tree.map(lambda _: TABLE_ROWS, tree)
+
+
+def put_rows(tree, n_dev: int):
+    """``tree``'s rows split over the first ``n_dev`` devices (as it is when ``n_dev`` is 1): where a shared
+    table is built (``kx.hyperneat.substrate.build``), so that the evaluator need not copy it whole onto
+    every device (:func:`rows_split`)."""
+    if n_dev == 1:
+        return tree
+    return jax.device_put(tree, jax.sharding.NamedSharding(mesh(n_dev), TABLE_ROWS))
+
+
+def rows_split(tree, n_dev: int) -> bool:
+    """Whether every leaf of a shared table is an array whose rows are split evenly over the first ``n_dev``
+    devices (``n_dev`` > 1), as :func:`put_rows` or a computation sharded so leaves them. The evaluator's
+    lanes are policy-major and never move between devices, so when the table's rows divide evenly, each
+    device's lanes play exactly the rows it holds, and it reads them there instead of a whole copy
+    (:func:`kx.sim.evaluate.evaluate`)."""
+    if n_dev == 1:
+        return False
+    want = jax.sharding.NamedSharding(mesh(n_dev), TABLE_ROWS)
+    leaves = jax.tree.leaves(tree)
+    return bool(leaves) and all(isinstance(a, jax.Array) and a.ndim >= 1 and a.shape[0] % n_dev == 0
+                                and a.sharding.is_equivalent_to(want, a.ndim) for a in leaves)
 
 
 def put_lanes(tree, n_dev: int):

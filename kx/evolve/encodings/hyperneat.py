@@ -120,9 +120,17 @@ class HyperNEATEncoding(NEATEncoding):
     policy_params_leading_axes = False  # its own policy_params: the substrate query, mapped over runs
 
     def policy_params(self, population):
-        from kx.hyperneat.substrate import build
+        """The population's substrates (:func:`kx.hyperneat.substrate.build`), built where the evaluator plays
+        them: their rows split over the devices when they divide evenly (kx.sim.lanes.rows_split), so that no
+        device needs a copy of the whole table (96 MB for 150 CPPNs); each CPPN's query keeps only the hidden
+        rows the population uses (read on the host: call it outside ``jit`` and ``vmap``). The same
+        substrates as reals (a zero's sign at most), so the same decisions, either way."""
+        from kx.hyperneat.substrate import build, hidden_rows
 
-        return build(population, self.neat_config, self.substrate)
+        n_dev = jax.local_device_count()
+        devices = n_dev if population.node_id.shape[0] % n_dev == 0 else 1
+        return build(population, self.neat_config, self.substrate, devices=devices,
+                     rows=hidden_rows(population, self.neat_config))
 
     def describe(self) -> str:
         c, s = self.neat_config, self.substrate
