@@ -1,0 +1,56 @@
+"""Where each run of a protocol folder spent its generations: ``python scripts/run_costs.py FOLDER [--out CSV]``.
+
+Reads the run directories under ``FOLDER/runs`` (they stay on the machine that trained them; results.csv
+alone does not hold this) and writes one row per run: its method, phase, setup and task, generations,
+and the means over its generations after the first (which compiles) of the population's mean fitness, the
+live episode-steps, the evaluation (policies' parameters built and every episode played), evolution and
+validation seconds and the whole generation's, and the evaluation's nanoseconds per live step. Default
+output: ``FOLDER/run_costs.csv``."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import pathlib
+
+import numpy as np
+
+FIELDS = ("mean_fitness", "live_steps", "eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
+
+
+def rows(folder: pathlib.Path) -> list[dict]:
+    out = []
+    for metrics in sorted(folder.glob("runs/*/*/*/run*/metrics.csv")):
+        method, kind, task, run = metrics.parts[-5:-1]
+        phase, setup = kind.split("-", 1)
+        with metrics.open() as f:
+            table = list(csv.DictReader(f))
+        later = table[1:] or table
+        row = {"method": method, "phase": phase, "setup": setup, "task": task, "run": int(run[3:]),
+               "generations": len(table)}
+        for k in FIELDS:
+            row[k] = float(np.mean([float(r[k]) for r in later]))
+        row["eval_ns_per_live_step"] = row["eval_seconds"] / max(row["live_steps"], 1) * 1e9
+        out.append(row)
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("folder", type=pathlib.Path)
+    p.add_argument("--out", type=pathlib.Path)
+    args = p.parse_args()
+    table = rows(args.folder)
+    if not table:
+        raise SystemExit(f"{args.folder}: no run directories with metrics.csv under runs/")
+    out = args.out or args.folder / "run_costs.csv"
+    with out.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(table[0]))
+        w.writeheader()
+        for r in table:
+            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    print(f"{out}: {len(table)} runs")
+
+
+if __name__ == "__main__":
+    main()
