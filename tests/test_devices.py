@@ -30,51 +30,35 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-# A shared table replicated on both devices while each device compacts its own lanes (600 lanes of 12
-# linear policies: the batch narrows through several widths).
-SHARED_SCRIPT = textwrap.dedent("""
+# 600 lanes of 12 linear policies on a shared table (the batch narrows through several widths) on one device
+# and on two, where each device compacts its own lanes: the table whole on each device (SHARED_SCRIPT), or
+# its rows split over them (ROWS_SCRIPT: kx.sim.lanes.put_rows, as HyperNEAT's substrates are built), each
+# device reading the rows its own lanes play.
+TABLE_SCRIPT = textwrap.dedent("""
     import jax, numpy as np
     assert jax.local_device_count() == 2
-    from kx.sim import env, observe, policies, evaluate as ev
-    from kx.sim.types import KeepAwayConfig, KeepAwayParams
-    cfg, params = KeepAwayConfig(), KeepAwayParams(max_iterations=120)
-    starts = env.reset_batch(jax.random.key(10), 50, params, cfg)
-    n = observe.n_inputs("fixed", cfg) * 3 + 3
-    table = policies.linear_params(jax.random.normal(jax.random.key(11), (12, n)), cfg)
-    pol = policies.linear_policy(cfg, shared=True)
-    c1, c2 = ev.EvalCounters(), ev.EvalCounters()
-    one = ev.evaluate(pol, table, starts, params, cfg, devices=1, key=jax.random.key(12), counters=c1)
-    two = ev.evaluate(pol, table, starts, params, cfg, devices=2, key=jax.random.key(12), counters=c2)
-    assert len(c2.widths) >= 3, c2.widths
-    for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
-        np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
-    print("ok", list(c2.widths))
-""")
-
-
-# A shared table whose rows come split over the two devices (kx.sim.lanes.put_rows, as HyperNEAT's substrates
-# are built): each device reads the rows its own lanes play, and the episodes are those of one device; and
-# HyperNEAT's substrates built split over the devices are those built on one, bit for bit.
-ROWS_SCRIPT = textwrap.dedent("""
-    import jax, numpy as np
-    assert jax.local_device_count() == 2
-    from kx.hyperneat import presets, substrate
-    from kx.neat import algorithm
     from kx.sim import env, lanes, observe, policies, evaluate as ev
     from kx.sim.types import KeepAwayConfig, KeepAwayParams
     cfg, params = KeepAwayConfig(), KeepAwayParams(max_iterations=120)
     starts = env.reset_batch(jax.random.key(10), 50, params, cfg)
     n = observe.n_inputs("fixed", cfg) * 3 + 3
     table = policies.linear_params(jax.random.normal(jax.random.key(11), (12, n)), cfg)
-    split = lanes.put_rows(table, 2)
-    assert lanes.rows_split(split, 2) and not lanes.rows_split(table, 2)
+    placed = {place}
+    assert lanes.rows_split(placed, 2) == {split}
     pol = policies.linear_policy(cfg, shared=True)
     c2 = ev.EvalCounters()
     one = ev.evaluate(pol, table, starts, params, cfg, devices=1, key=jax.random.key(12))
-    two = ev.evaluate(pol, split, starts, params, cfg, devices=2, key=jax.random.key(12), counters=c2)
+    two = ev.evaluate(pol, placed, starts, params, cfg, devices=2, key=jax.random.key(12), counters=c2)
     assert len(c2.widths) >= 3, c2.widths
     for f in ("fitness", "iterations", "reason", "passes", "behaviour"):
         np.testing.assert_array_equal(np.asarray(getattr(one, f)), np.asarray(getattr(two, f)), err_msg=f)
+    print("ok", list(c2.widths))
+""")
+SHARED_SCRIPT = TABLE_SCRIPT.format(place="table", split=False)
+# and HyperNEAT's substrates built split over the devices are those built on one, bit for bit
+ROWS_SCRIPT = TABLE_SCRIPT.format(place="lanes.put_rows(table, 2)", split=True) + textwrap.dedent("""
+    from kx.hyperneat import presets, substrate
+    from kx.neat import algorithm
     ncfg, nparams = presets.cppn(n_inputs=5)
     pop = jax.tree.map(lambda a: a[:4], algorithm.NEAT(ncfg).init(jax.random.key(3), nparams).population)
     sub = substrate.Substrate(distance_input=True)
@@ -82,7 +66,7 @@ ROWS_SCRIPT = textwrap.dedent("""
     assert lanes.rows_split(halves, 2)
     for k in alone:
         np.testing.assert_array_equal(np.asarray(alone[k]).view(np.int32), np.asarray(halves[k]).view(np.int32))
-    print("ok", list(c2.widths))
+    print("ok")
 """)
 
 
