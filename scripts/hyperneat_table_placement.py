@@ -3,6 +3,7 @@
 On the trained 4v3 population of ``kx.bench policies`` (``kx/bench/data/policies/hyperneat_4v3.npz``) and its
 150 x 30 lanes, in one process on every host device, each path timed in turn for ``--rounds`` rounds (medians):
 
+* the three copies of the table the run loop made before (stacked, sliced, replicated onto every device);
 * ``build, every hidden row, one device`` against ``build as the run loop makes it`` (``encoding.policy_params``:
   only the hidden rows the population uses, the rows of the table split over the devices);
 * a generation's build and evaluation the way the run loop made it before 2026-12-04 (the table built on one
@@ -32,7 +33,7 @@ def main() -> None:
     from kx.evolve import streams
     from kx.evolve import trainer as trm
     from kx.hyperneat import substrate as sb
-    from kx.sim import env
+    from kx.sim import env, lanes
     from kx.sim import evaluate as ev
 
     trainer, population, meta = load_fixture("hyperneat")
@@ -51,7 +52,15 @@ def main() -> None:
     def now():
         return np.asarray(group.evaluate(runs, starts, keys.eval[None]).fitness)
 
+    whole = jax.block_until_ready(sb.build(population, enc.neat_config, enc.substrate))
+    stacked = jax.block_until_ready(trm.stack_states([whole]))
     paths = {
+        # the three copies the path before made of the table (docs/hyperneat.md, "Where the table lives")
+        "copy 1: stacked into the group's [R, P, ...]": lambda: jax.block_until_ready(trm.stack_states([whole])),
+        "copy 2: sliced again for the evaluator call": lambda: jax.block_until_ready(
+            trm._runs_slice(stacked, starts, np.int32(0), runs=1, trials=trials)),
+        "copy 3: whole onto every device (evaluate)": lambda: jax.block_until_ready(
+            lanes.put_replicated(whole, jax.local_device_count())),
         "build, every hidden row, one device": lambda: jax.block_until_ready(
             sb.build(population, enc.neat_config, enc.substrate)),
         "build as the run loop makes it": lambda: jax.block_until_ready(enc.policy_params(population)),

@@ -335,7 +335,8 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # table whole on each device (replicated), or, where it comes with its rows split over the devices and
     # they divide evenly (HyperNEAT's substrates, built so: kx.hyperneat.substrate.build), as it is: each
     # device's lanes play exactly its rows (the lanes are policy-major and stay on their device), and a copy
-    # of the whole table onto each device (96 MB, about 55 ms on 2 CPU devices) is saved
+    # of the whole table onto each device (96 MB, about 48 ms on 2 CPU devices:
+    # scripts/hyperneat_table_placement.py) is saved
     table_rows = policy.shared and lanes.rows_split(policy_params, n_dev)
     table, scalars = lanes.put_replicated(
         (policy_params if policy.shared and not table_rows else None, lanes.pack_scalars(params, group_size, keys)),
