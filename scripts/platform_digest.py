@@ -53,6 +53,50 @@ def _state_sums(state) -> dict[str, int]:
     return {f: _checksum(getattr(state, f)) for f in state.__dataclass_fields__}
 
 
+def _reset_parts(key, episodes, params, config) -> dict:
+    """``kx.sim.env.reset``'s stages for every episode, to name the operation where two platforms' start states
+    part (on the H200 of 2026-12-04 the takers' cells differed, the keepers' and the holder did not): the
+    random bits behind the takers' scores, the cells forbidden to them, the two top-k selections (keepers by
+    their scores, takers among the allowed cells), and the cells themselves, one row per episode."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from kx.sim import geometry as geo
+
+    w, k, t = config.field_size, config.n_keepers, config.n_takers
+
+    def parts(kk):
+        k_hold, k_keep, k_take = jax.random.split(kk, 3)
+        cells = jnp.arange(w * w, dtype=jnp.int32)
+        keep_scores = jax.random.uniform(k_keep, (w * w,))
+        keeper_cells = jax.lax.top_k(keep_scores, k)[1].astype(jnp.int32)
+        holder = jax.random.randint(k_hold, (), 0, k, dtype=jnp.int32)
+        hx, hy = keeper_cells[holder] % w, keeper_cells[holder] // w
+        forbidden = (jnp.zeros(w * w, bool).at[keeper_cells].set(True)
+                     | (geo.cheb(cells % w, cells // w, hx, hy) <= params.start_clearance))
+        take_scores = jnp.where(forbidden, -1.0, jax.random.uniform(k_take, (w * w,)))
+        taker_cells = jax.lax.top_k(take_scores, t)[1].astype(jnp.int32)
+        # the same selection by a full sort of integer keys (no top-k, no float comparison): a reference
+        # for the platform's top-k (scores are ties-free here; -1 for the forbidden)
+        int_keys = jnp.where(forbidden, -1, (jax.random.bits(k_take, (w * w,)) >> 9).astype(jnp.int32))
+        by_sort = jnp.argsort(-int_keys, stable=True)[:t].astype(jnp.int32)
+        return (jax.random.bits(k_keep, (w * w,)), jax.random.bits(k_take, (w * w,)), forbidden,
+                keeper_cells, taker_cells, by_sort, take_scores)
+
+    kb, tb, forb, kc, tc, by_sort, ts = jax.jit(jax.vmap(parts))(jax.random.split(key, episodes))
+    ts = np.asarray(ts)
+    tc = np.asarray(tc)
+    def rows(a):  # one string, an episode's cells per ';'-separated entry (a compact file)
+        return ";".join(",".join(map(str, r)) for r in np.asarray(a).tolist())
+
+    return {"keeper_bits": _checksum(np.asarray(kb).T.view(np.int32)),
+            "taker_bits": _checksum(np.asarray(tb).T.view(np.int32)),
+            "forbidden": _checksum(np.asarray(forb).T), "keeper_cells": rows(kc),
+            "taker_cells": rows(tc), "taker_cells_by_sort": rows(by_sort),
+            "takers_on_forbidden_cells": int((np.take_along_axis(ts, tc, 1) < 0).sum())}
+
+
 def digest(episodes: int, seed: int) -> dict:
     import jax
     import jax.numpy as jnp
@@ -70,6 +114,7 @@ def digest(episodes: int, seed: int) -> dict:
     s_max = env.noise_limit(params.kick_noise_deg)
     out = {"platform": jax.devices()[0].platform, "jax": jax.__version__, "episodes": episodes, "seed": seed,
            "starts": _state_sums(starts), "noise_words": _checksum(np.asarray(words)), "s_max": int(s_max)}
+    out["reset"] = _reset_parts(jax.random.key(seed), episodes, params, config)
     out["first_decision"] = _checksum(jax.jit(lambda s: policy.apply(None, s, None))(starts))
     out["kick_noise_t0_3"] = [_checksum(env.kick_noise(words, jnp.full(episodes, t, jnp.int32), s_max))
                               for t in range(4)]
@@ -115,6 +160,19 @@ def compare(got: dict, want: dict) -> list[str]:
             lines.append(f"{k}: {got[k]} here, {want[k]} there")
     diff = [f for f in want["starts"] if got["starts"].get(f) != want["starts"][f]]
     lines.append(f"starts: {'differ in ' + ', '.join(diff) if diff else 'the same'}")
+    if "reset" in got and "reset" in want:
+        r, q = got["reset"], want["reset"]
+        for k in ("keeper_bits", "taker_bits", "forbidden"):
+            lines.append(f"reset {k}: {'the same' if r[k] == q[k] else 'differ'}")
+        for k in ("keeper_cells", "taker_cells", "taker_cells_by_sort"):
+            a, b = r[k].split(";"), q[k].split(";")
+            bad = [i for i, (x, y) in enumerate(zip(a, b)) if x != y]
+            lines.append(f"reset {k}: {len(bad)} of {len(b)} episodes differ"
+                         + (f" (episodes {bad[:5]}: {[a[i] for i in bad[:3]]} here, {[b[i] for i in bad[:3]]} there)"
+                            if bad else ""))
+        own = sum(x != y for x, y in zip(r["taker_cells"].split(";"), r["taker_cells_by_sort"].split(";")))
+        lines.append(f"reset: here top-k and the integer sort disagree on the takers of {own} episodes; "
+                     f"takers on forbidden cells here {r['takers_on_forbidden_cells']}")
     for k in ("noise_words", "first_decision", "kick_noise_t0_3"):
         lines.append(f"{k}: {'the same' if got[k] == want[k] else 'differ'}")
     first = next(((a, b) for a, b in zip(got["lockstep"]["blocks"], want["lockstep"]["blocks"]) if a != b), None)
