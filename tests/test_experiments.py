@@ -367,18 +367,19 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
 
 def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
     """A protocol folder as a fresh clone has it (results.csv and protocol.json, no run directories) extends to
-    5v3: its two fitness sources are trained again as a group, reproduce their rows, and seed the new
-    targets. Refused before any compute: a source whose row the protocol's config would not give now, test
+    a target it has no run of (4v3; the folder holds the two fitness sources alone, so that one task's
+    programs compile, not two): its sources are trained again as a group, reproduce their rows, and seed the
+    new targets. Refused before any compute: a source whose row the protocol's config would not give now, test
     states or a design this code would not use, a finished source directory that is not the run of its row.
     A re-run that does not reproduce its row is set aside and seeds nothing; the rest of its group is
     checked all the same."""
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     out = tmp_path / "t3"
-    t3.run(out, protocol, t3.plan(("neat",), ("4v3",), ("fitness",), runs=2), log=lambda s: None)
+    to_4v3 = t3.plan(("neat",), ("4v3",), ("fitness",), runs=2)
+    t3.run(out, protocol, [s for s in to_4v3 if s.phase == "source"], log=lambda s: None)
     committed = {n: (out / n).read_bytes() for n in ("results.csv", "protocol.json")}
     assert set(json.loads(committed["protocol.json"])) >= {"test_states", "design", "seed"}
     shutil.rmtree(out / "runs")
-    to_5v3 = t3.plan(("neat",), ("5v3",), ("fitness",), runs=2)
     rows = t3.read_results(out / "results.csv")
     sources = {int(r["run"]): r for r in rows if r["phase"] == "source"}
     src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
@@ -389,23 +390,23 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     def refused(match, run=0, **changes):
         edit(run, **changes)
         with pytest.raises(t3.RunError, match=match):
-            t3.run(out, protocol, to_5v3, log=lambda s: None)
+            t3.run(out, protocol, to_4v3, log=lambda s: None)
         (out / "results.csv").write_bytes(committed["results.csv"])
 
     refused(r"neat 3v2 source \(fitness\) run 0: its run directory .* is missing, and its row .*seed recorded 1,",
             seed="1")
     refused(r"generations recorded 3, now 2", generations="3")
-    for field, value, match in (("test_states", "sha256:0", "test_states: this code draws other test states .*5v3"),
+    for field, value, match in (("test_states", "sha256:0", "test_states: this code draws other test states .*4v3"),
                                 ("design", 0.01, "design: the statistical design recorded before the runs differs "
                                                  r"from this code's \(alpha\)")):
         edited = json.loads(committed["protocol.json"])
         if field == "test_states":
-            edited[field]["sha256"]["5v3"] = value
+            edited[field]["sha256"]["4v3"] = value
         else:
             edited[field]["alpha"] = value
         (out / "protocol.json").write_text(json.dumps(edited))
         with pytest.raises(t3.RunError, match=match):
-            t3.run(out, protocol, to_5v3, log=lambda s: None)
+            t3.run(out, protocol, to_4v3, log=lambda s: None)
     (out / "protocol.json").write_bytes(committed["protocol.json"])
     assert not (out / "runs").exists()  # nothing ran
 
@@ -415,7 +416,7 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     edit(0, max_fitness="0.5")
     with pytest.raises(t3.RunError, match=r"1 of 2 sources do not reproduce their rows .*source \(fitness\) run 0 "
                                           r"\(max_fitness recorded 0.5, now .*set aside in .*run00.rejected"):
-        t3.run(out, protocol, to_5v3, log=lines.append)
+        t3.run(out, protocol, to_4v3, log=lines.append)
     assert "2 finished sources without a run directory trained again first" in lines[0]
     assert any(ln.endswith("source (fitness) run 1: trained again, its row reproduced (every column but the times)")
                for ln in lines)
@@ -428,15 +429,15 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     assert not (src_dir / "run00").exists()
 
     lines = []
-    t3.run(out, protocol, to_5v3, log=lines.append)
+    t3.run(out, protocol, to_4v3, log=lines.append)
     assert "1 finished sources without a run directory trained again first" in lines[0]
-    assert any("(again)] gen 2/2" in ln and ln.endswith("(from 4 finished runs; 2 runs costed at their method's "
-                                                       "runs of other tasks)") for ln in lines)  # 5v3 at 4v3's
+    assert any("(again)] gen 2/2" in ln and ln.endswith("(from 2 finished runs; 2 runs of kinds with none finished "
+                                                       "not counted)") for ln in lines)  # no target has run yet
     assert any(ln.endswith("source (fitness) run 0: trained again, its row reproduced (every column but the times)")
                for ln in lines)
     after = (out / "results.csv").read_bytes()
-    assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 7  # the header, 4 rows, 5v3's 2
-    assert [r["target"] for r in t3.read_results(out / "results.csv")[-2:]] == ["5v3", "5v3"]
+    assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 5  # the header, 2 sources, 2 targets
+    assert [(r["phase"], r["target"]) for r in t3.read_results(out / "results.csv")[-2:]] == [("target", "4v3")] * 2
     assert (out / "protocol.json").read_bytes() == committed["protocol.json"]
 
 
