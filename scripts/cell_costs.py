@@ -1,0 +1,86 @@
+"""What a protocol cell costs per run in one folder against others, and whether their rows agree:
+``python scripts/cell_costs.py FOLDER OTHER [OTHER ...] [--scale ONE_RUN_FOLDER]``.
+
+For each cell (method, phase, task, setup) of FOLDER's results.csv: its runs, the mean wall seconds per run
+(each run's share of its batched group's time, as the report's Cost table) and per generation, and the same
+for each OTHER folder's runs of that cell with the ratio OTHER / FOLDER; then how many of FOLDER's rows an
+OTHER folder holds too (same method, setup, phase, target and run) and how many of those equal it in every
+column but the two times (`kx.experiments.table3.REPRODUCED`).
+
+``--scale ONE_RUN_FOLDER``: the full protocol (`kx.experiments.report.full_protocol_seconds`, 20 runs a
+cell) costed from ONE_RUN_FOLDER's rows, and again with each method's sources and targets scaled by their
+ratio of FOLDER's wall per run to ONE_RUN_FOLDER's over the cells both hold (the mean of FOLDER's runs of a
+cell against ONE_RUN_FOLDER's runs of it, averaged over the method's cells of that phase). That assumes the
+ratio measured on FOLDER's cells (batched groups of a full cell, compilation spread over its runs) holds in
+the method's other cells of the phase; it is an estimate, printed as one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import pathlib
+
+import numpy as np
+
+from kx.experiments import report
+from kx.experiments import table3 as t3
+
+
+def _cells(rows):
+    out = collections.defaultdict(list)
+    for r in rows:
+        out[(r["method"], r["phase"], r["target"], r["setup"])].append(r)
+    return out
+
+
+def _per_run(rs):
+    wall = float(np.mean([float(r["wall_seconds"]) for r in rs]))
+    gens = float(np.mean([int(r["generations"]) for r in rs]))
+    return wall, float(np.mean([float(r["generation_seconds"]) for r in rs])) / gens
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("folder", type=pathlib.Path)
+    p.add_argument("others", type=pathlib.Path, nargs="*")
+    p.add_argument("--scale", type=pathlib.Path, help="a one-run-a-cell folder to scale to the full protocol")
+    args = p.parse_args(argv)
+    rows = t3.read_results(args.folder / "results.csv")
+    others = {o: t3.read_results(o / "results.csv") for o in args.others}
+    cells = _cells(rows)
+    print("| cell | runs | wall s per run | s per generation | " + " | ".join(
+        f"{o}: runs, wall s per run (ratio)" for o in others) + " |")
+    print("|---|---|---|---|" + "---|" * len(others))
+    for key, rs in sorted(cells.items()):
+        wall, per_gen = _per_run(rs)
+        line = f"| {' '.join(key)} | {len(rs)} | {wall:.1f} | {per_gen:.2f} |"
+        for orows in others.values():
+            ors = _cells(orows).get(key)
+            line += " — |" if not ors else f" {len(ors)}, {_per_run(ors)[0]:.1f} ({_per_run(ors)[0] / wall:.2f}) |"
+        print(line)
+    for o, orows in others.items():
+        index = {t3.row_key(r): r for r in orows}
+        both = [(r, index[t3.row_key(r)]) for r in rows if t3.row_key(r) in index]
+        same = sum(all(str(a[c]) == str(b[c]) for c in t3.REPRODUCED) for a, b in both)
+        print(f"{o}: {len(both)} of {len(rows)} rows held there too; {same} of them equal in every column but "
+              "the times")
+    if args.scale:
+        one = t3.read_results(args.scale / "results.csv")
+        ratios = collections.defaultdict(list)
+        for key, rs in cells.items():
+            ors = _cells(one).get(key)
+            if ors:
+                ratios[key[:2]].append(_per_run(rs)[0] / _per_run(ors)[0])
+        factor = {k: float(np.mean(v)) for k, v in ratios.items()}
+        base, _, _ = report.full_protocol_seconds(one)
+        scaled = [dict(r, wall_seconds=float(r["wall_seconds"]) * factor.get((r["method"], r["phase"]), 1.0))
+                  for r in one]
+        est, _, _ = report.full_protocol_seconds(scaled)
+        print(f"full protocol from {args.scale}: {base / 3600:.1f} h; each method's sources and targets scaled by "
+              f"their ratio here ({', '.join(f'{m} {p} {f:.2f}' for (m, p), f in sorted(factor.items()))}; "
+              f"1.0 without a cell here): {est / 3600:.1f} h (an estimate)")
+
+
+if __name__ == "__main__":
+    main()
