@@ -15,16 +15,7 @@
 # On the H200 of 2026-12-04 compilation dominated (a NEAT generation's first evaluation 50 s against 0.05-0.1 s
 # warm; docs/benchmarks.md, "On a GPU"): 15 minutes of device time did not cover these four at these sizes.
 set -u
-OUT=${1:-${OUT:-/tmp/kx-device}}
-mkdir -p "$OUT"
-export PYTHONUNBUFFERED=1 KX_CACHE_DIR=${KX_CACHE_DIR:-/tmp/kx-jax-cache}
-if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-    || exit 1
-  export PYTHONPATH=/tmp/site:$PWD
-else
-  export PYTHONPATH=$PWD
-fi
+source "$(dirname "$0")/device_env.sh" "$@"
 read -r T_SIM T_POL T_HN T_RUNS <<<"${KX_DEVICE_LIMITS:-60 100 100 150}"
 {
   date -u

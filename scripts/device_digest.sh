@@ -1,21 +1,12 @@
 #!/usr/bin/env bash
 # Does a GPU machine play this CPU's episodes? One device call: scripts/platform_digest.py on the machine's
-# CPU backend and on its GPU, each compared with docs/results/platform_digest_cpu.json, then (with the time
-# left) `kx.bench runs` at R = 16 (docs/benchmarks.md, "On a GPU"). Wheels travel in .whl/ as for
+# CPU backend and on its GPU, each compared with docs/results/platform_digest_cpu.json, then (with
+# KX_RUNS_LIMIT=SECONDS) `kx.bench runs` at R = 16 (docs/benchmarks.md, "On a GPU"). Wheels travel in .whl/ as for
 # scripts/device_bench.sh.
 #
 #   bash scripts/device_digest.sh [OUT]     # logs to OUT (default $OUT, else /tmp/kx-device)
 set -u
-OUT=${1:-${OUT:-/tmp/kx-device}}
-mkdir -p "$OUT"
-export PYTHONUNBUFFERED=1 KX_CACHE_DIR=${KX_CACHE_DIR:-/tmp/kx-jax-cache}
-if [ -d .whl ] && ls .whl/*.whl >/dev/null 2>&1; then
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-    || exit 1
-  export PYTHONPATH=/tmp/site:$PWD
-else
-  export PYTHONPATH=$PWD
-fi
+source "$(dirname "$0")/device_env.sh" "$@"
 REF=docs/results/platform_digest_cpu.json
 t0=$SECONDS
 JAX_PLATFORMS=cpu timeout 120 python3 scripts/platform_digest.py --compare "$REF" --out "$OUT/digest_cpu.json" \
