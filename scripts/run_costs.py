@@ -4,8 +4,11 @@ Reads the run directories under ``FOLDER/runs`` (they stay on the machine that t
 alone does not hold this) and writes one row per run: its method, phase, setup and task, generations,
 and the means over its generations after the first (which compiles) of the population's mean fitness, the
 live episode-steps, the evaluation (policies' parameters built and every episode played), evolution and
-validation seconds and the whole generation's, and the evaluation's nanoseconds per live step. Default
-output: ``FOLDER/run_costs.csv``."""
+validation seconds and the whole generation's, and the evaluation's nanoseconds per live step. A run trained
+in a batched group records its group's times in metrics.csv; its seconds here are its share of them (the
+group's divided by ``share``, the group's size times the local processes, read off results.csv: the sum of
+the metrics' generation times over the row's ``generation_seconds``). Default output:
+``FOLDER/run_costs.csv``."""
 
 from __future__ import annotations
 
@@ -18,18 +21,34 @@ import numpy as np
 FIELDS = ("mean_fitness", "live_steps", "eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
 
 
+def _shares(folder: pathlib.Path) -> dict:
+    """Per run (method, phase, setup, task, run), its results.csv row's ``generation_seconds``; none without
+    results.csv."""
+    path = folder / "results.csv"
+    if not path.is_file():
+        return {}
+    with path.open() as f:
+        return {(r["method"], r["phase"], r["setup"], r["target"], int(r["run"])): float(r["generation_seconds"])
+                for r in csv.DictReader(f)}
+
+
 def rows(folder: pathlib.Path) -> list[dict]:
     out = []
+    charged = _shares(folder)
     for metrics in sorted(folder.glob("runs/*/*/*/run*/metrics.csv")):
         method, kind, task, run = metrics.parts[-5:-1]
         phase, setup = kind.split("-", 1)
         with metrics.open() as f:
             table = list(csv.DictReader(f))
         later = table[1:] or table
+        key = (method, phase, setup, task, int(run[3:]))
+        total = sum(float(r["generation_seconds"]) for r in table)
+        share = max(1, round(total / charged[key])) if charged.get(key) else 1
         row = {"method": method, "phase": phase, "setup": setup, "task": task, "run": int(run[3:]),
-               "generations": len(table)}
+               "generations": len(table), "share": share}
         for k in FIELDS:
-            row[k] = float(np.mean([float(r[k]) for r in later]))
+            per = 1 if k in ("mean_fitness", "live_steps") else share  # seconds: the run's share of its group's
+            row[k] = float(np.mean([float(r[k]) for r in later])) / per
         row["eval_ns_per_live_step"] = row["eval_seconds"] / max(row["live_steps"], 1) * 1e9
         out.append(row)
     return out
