@@ -52,17 +52,19 @@ def main(argv=None) -> None:
     print("| cell | runs | wall s per run | s per generation | " + " | ".join(
         f"{o}: runs, wall s per run (ratio)" for o in others) + " |")
     print("|---|---|---|---|" + "---|" * len(others))
+    other_cells = [_cells(orows) for orows in others.values()]
     for key, rs in sorted(cells.items()):
         wall, per_gen = _per_run(rs)
         line = f"| {' '.join(key)} | {len(rs)} | {wall:.1f} | {per_gen:.2f} |"
-        for orows in others.values():
-            ors = _cells(orows).get(key)
-            line += " — |" if not ors else f" {len(ors)}, {_per_run(ors)[0]:.1f} ({_per_run(ors)[0] / wall:.2f}) |"
+        for oc in other_cells:
+            ors = oc.get(key)
+            owall = _per_run(ors)[0] if ors else None
+            line += " — |" if not ors else f" {len(ors)}, {owall:.1f} ({owall / wall:.2f}) |"
         print(line)
     for o, orows in others.items():
         index = {t3.row_key(r): r for r in orows}
         both = [(r, index[t3.row_key(r)]) for r in rows if t3.row_key(r) in index]
-        same = sum(all(str(a[c]) == str(b[c]) for c in t3.REPRODUCED) for a, b in both)
+        same = sum(not t3.differences(b, a, t3.REPRODUCED) for a, b in both)
         print(f"{o}: {len(both)} of {len(rows)} rows held there too; {same} of them equal in every column but "
               "the times")
     if args.scale:

@@ -21,27 +21,19 @@ import numpy as np
 FIELDS = ("mean_fitness", "live_steps", "eval_seconds", "evolve_seconds", "validation_seconds", "generation_seconds")
 
 
-def _shares(folder: pathlib.Path) -> dict:
-    """Per run (method, phase, setup, task, run), its results.csv row's ``generation_seconds``; none without
-    results.csv."""
-    path = folder / "results.csv"
-    if not path.is_file():
-        return {}
-    with path.open() as f:
-        return {(r["method"], r["phase"], r["setup"], r["target"], int(r["run"])): float(r["generation_seconds"])
-                for r in csv.DictReader(f)}
-
-
 def rows(folder: pathlib.Path) -> list[dict]:
+    from kx.experiments import table3 as t3
+
     out = []
-    charged = _shares(folder)
+    # each run's generation_seconds as results.csv charges it (its share of its group's); none without the file
+    charged = {t3.row_key(r): float(r["generation_seconds"]) for r in t3.read_results(folder / "results.csv")}
     for metrics in sorted(folder.glob("runs/*/*/*/run*/metrics.csv")):
         method, kind, task, run = metrics.parts[-5:-1]
         phase, setup = kind.split("-", 1)
         with metrics.open() as f:
             table = list(csv.DictReader(f))
         later = table[1:] or table
-        key = (method, phase, setup, task, int(run[3:]))
+        key = (method, setup, phase, task, int(run[3:]))  # table3.row_key's order
         total = sum(float(r["generation_seconds"]) for r in table)
         share = max(1, round(total / charged[key])) if charged.get(key) else 1
         row = {"method": method, "phase": phase, "setup": setup, "task": task, "run": int(run[3:]),
