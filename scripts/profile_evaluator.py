@@ -3,8 +3,9 @@
 ``python scripts/profile_evaluator.py [--episodes 4500] [--repeats 20]``
 
 4500 episodes of the default 3v2 task played by the heuristic (what ``python -m kx.bench sim`` times),
-with one XLA host device per core. Each stage is synchronised before the next starts, so the sum is a
-little above what ``kx.bench sim`` measures with the rungs dispatched back to back. Prints, as medians
+with one XLA host device per core. Each stage is synchronised before the next starts (each rung its own
+call of :func:`kx.sim.evaluate._rungs`), so the sum is a little above what ``kx.bench sim`` measures with
+every rung in one call. Prints, as medians
 over ``--repeats`` evaluations: preparing the lanes (:func:`kx.sim.evaluate._prepare` and the split
 over the devices), every rung's time, iterations and cost per executed lane-step and device; a rung
 with nothing to do (every lane finished), with and without its compaction; and the step alone (4096
@@ -74,9 +75,8 @@ def main() -> None:
         for k, w in enumerate(chain):
             nxt = chain[k + 1] if k + 1 < len(chain) else 0
             t0 = time.perf_counter()
-            *compacted, _, ran = jax.block_until_ready(ev._advance_and_compact(rows, None, scalars, width=nxt,
-                                                                                **rung))
-            per[w].append((time.perf_counter() - t0, np.asarray(ran)[:, 0]))
+            *compacted, _, ran = jax.block_until_ready(ev._rungs(rows, None, scalars, targets=(nxt,), **rung))
+            per[w].append((time.perf_counter() - t0, np.asarray(ran)[:, 0, 0]))
             rows = compacted[0] if compacted else None
     total = 0.0
     for w in chain:
@@ -92,7 +92,7 @@ def main() -> None:
     i_done = [i for i, (_, dtype) in enumerate(layout.leaves) if dtype == "bool"][0]
     done = jax.device_put(rows.at[layout.n_rows(i_done)].set(1), rows.sharding)  # every lane finished
     for w in (chain[1], 0):
-        ms = _median_ms(lambda w=w: ev._advance_and_compact(done, None, scalars, width=w, **rung), args.repeats * 10)
+        ms = _median_ms(lambda w=w: ev._rungs(done, None, scalars, targets=(w,), **rung), args.repeats * 10)
         print(f"a rung with nothing to do, {'compacting to ' + str(w) if w else 'no compaction'}: {ms:.3f} ms")
 
     block = jax.tree.map(lambda a: a[..., :4096], starts)

@@ -44,9 +44,9 @@ def test_new_table_values_do_not_recompile():
     pol = policies.linear_policy(CFG, shared=True)
     key = jax.random.key(4)
     first = ev.evaluate(pol, _linear_table(4, seed=5), starts, PARAMS, CFG, key=key)
-    n_compiled = ev._advance_and_compact._cache_size()
+    n_compiled = ev._rungs._cache_size()
     second = ev.evaluate(pol, _linear_table(4, seed=6), starts, PARAMS, CFG, key=key)
-    assert ev._advance_and_compact._cache_size() == n_compiled
+    assert ev._rungs._cache_size() == n_compiled
     assert not np.array_equal(np.asarray(first.iterations), np.asarray(second.iterations))
 
 

@@ -144,7 +144,7 @@ def run(args) -> None:
                                         [sec, args.reference_seconds / reps])
     heur, ref_rate = _summary(samples), _summary(ref_samples)
     print(f"heuristic: {_fmt(heur)} live episode-steps; one evaluation: {c.live_steps} live steps, executed "
-          f"{c.executed_steps} lane-steps ({c.live_steps / c.executed_steps:.2f} live) in {c.chunks} calls; widths "
+          f"{c.executed_steps} lane-steps ({c.live_steps / c.executed_steps:.2f} live) in {c.chunks} rungs; widths "
           f"{list(c.widths)}; {len(samples) and samples[0][1] // c.live_steps} evaluations per sample; mean fitness "
           f"{float(stats.fitness.mean()):.4f}", flush=True)
 

@@ -2,12 +2,20 @@
 
 Every (policy, trial) pair is a *lane*; lanes are batch-last arrays stepped in lockstep by a jitted
 ``while_loop``. The batch narrows as episodes end, down a ladder of widths (:func:`width_ladder`,
-:func:`rungs`): each *rung* is one compiled call that steps its lanes until the live ones fit the next
-narrower width and then gathers them into it, on the device. The rungs are dispatched back to back and
-the host waits for none of them: it reads their counters once, when the last has run, so short
-episodes pay no host round trips. Each rung compiles once per (policy, task, width) and is reused
-across generations. A batch whose episodes end early therefore costs about what its live steps cost,
-and the results equal those of each episode run alone (lanes never interact; the tests check this).
+:func:`rungs`): each *rung* steps its lanes until the live ones fit the next narrower width and then
+gathers them into it, on the device. Every rung of an evaluation runs in one compiled call
+(:func:`_rungs`), compiled once per (policy, task, lane count) and reused across generations; the host
+reads the rungs' counters once, when the last has run, so short episodes pay no host round trips. A
+batch whose episodes end early therefore costs about what its live steps cost, and the results equal
+those of each episode run alone (lanes never interact; the tests check this).
+
+Split over several devices, each device steps and compacts its own lanes down the ladder on its own
+counts and meets the others only at the end of the call. Until 2026-12-04 each rung was a call of its
+own, and a call ended when its slowest device did: where one device's lanes held the long episodes
+(good genomes: the lanes are policy-major, so a device holds one half of the population) it ran the
+whole tail in one rung while the other waited, then the other ran its tail in the next rung while the
+first waited. Trained HyperNEAT 4v3 populations evaluated 1.0-2.6 times as fast in one call (the same
+episodes), NEAT's groups of 16 runs about 1.04 times (scripts/rungs_in_one_call.py).
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
 ``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
 is :mod:`kx.sim.lanes`; this module steps them.
@@ -161,12 +169,11 @@ def advance(state, lane_params, noise_word, lane_id, keys, group_size, params, c
 
 
 # The rungs of the ladder an evaluation steps through: from a width, the next is the widest one at most
-# this share of it. Each rung is one compiled call that steps its lanes until the live ones fit the next
-# rung, and there compacts them; the calls are dispatched one after another without waiting for each
-# other (no host sync between rungs: the host reads the counters once, at the end). A rung whose lanes
-# already fit the next one costs a compaction only. Measured on 4500 heuristic episodes of 3v2 when the
-# host still returned between calls (a sync, a record and a compaction, 1-2 ms each): 1.0 (every rung)
-# 6.3M live-steps/s, 0.8 9.0M, 0.6 9.0M, 0.5 7.8M.
+# this share of it. Each rung steps its lanes until the live ones fit the next rung, and there compacts
+# them (:func:`_rungs`). A rung whose lanes already fit the next one costs a compaction only. Measured on
+# 4500 heuristic episodes of 3v2 when each rung was a call and the host still returned between calls (a
+# sync, a record and a compaction, 1-2 ms each): 1.0 (every rung) 6.3M live-steps/s, 0.8 9.0M, 0.6 9.0M,
+# 0.5 7.8M.
 SHRINK = 0.8
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum", "decisions")
@@ -186,48 +193,56 @@ def rungs(ladder: list[int]) -> list[int]:
         out.append(nxt[0])
 
 
-@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "width", "layout", "n_groups", "impl",
+@functools.partial(jax.jit, static_argnames=("policy", "config", "n_dev", "targets", "layout", "n_groups", "impl",
                                              "table_rows"), compiler_options=LOOP_COMPILER_OPTIONS)
-def _advance_and_compact(rows, lane_params, scalars, table=None, *, policy, config, n_dev, width, layout, n_groups,
-                         impl, table_rows=False):
-    """One rung: every lane stepped until the live ones fit ``width`` (0: until every episode has ended),
-    then on each device the ``width // n_dev`` of its lanes that come first when live lanes are put
-    before finished ones (lanes never move between devices). Each device stops on its own count (a
-    global one would need a collective every iteration, which measured slower). The lanes (state, a
-    shared policy's row index, noise word, id) come and go packed in one array ``rows``
-    (:class:`kx.sim.lanes.Layout`), a per-lane policy's parameters beside them as they are (``lane_params``, else
-    None: packed, NEAT's networks were copied once more per rung and its evaluation took 15% longer);
-    ``scalars`` holds the params, the run groups' size and their ``n_groups`` keys of PRNG ``impl``
-    (:func:`kx.sim.lanes.pack_scalars`). A shared ``table`` is whole on every device, or with ``table_rows``
-    its rows are split over the devices (:func:`kx.sim.lanes.rows_split`: each device holds the rows its
-    lanes play, and a lane's row index is made local to them). Returns the compacted lanes and parameters
-    (none for the last rung), the counters of every lane before the compaction and its lane id, stacked
-    ``[7, lanes]`` (:data:`COUNTERS`, then the id; finished lanes' values are final), and per device the
-    iterations run and the live lanes ``[n_dev, 2]``."""
+def _rungs(rows, lane_params, scalars, table=None, *, policy, config, n_dev, targets, layout, n_groups, impl,
+           table_rows=False):
+    """Rungs one after another in one compiled call: in rung ``k`` every lane is stepped until the live ones
+    fit ``targets[k]`` (0: until every episode has ended), then on each device the ``targets[k] // n_dev`` of
+    its lanes that come first when live lanes are put before finished ones (lanes never move between
+    devices) go on to the next rung. Each device runs its own loops and compactions, stopping on its own
+    counts, and waits for the other devices only at the end of the call: one device's long episodes do not
+    hold the others at every rung (see ``evaluate``). The lanes (state, a shared policy's row index, noise
+    word, id) come and go packed in one array ``rows`` (:class:`kx.sim.lanes.Layout`), a per-lane policy's
+    parameters beside them as they are (``lane_params``, else None: packed, NEAT's networks were copied once
+    more per rung and its evaluation took 15% longer); ``scalars`` holds the params, the run groups' size and
+    their ``n_groups`` keys of PRNG ``impl`` (:func:`kx.sim.lanes.pack_scalars`). A shared ``table`` is whole
+    on every device, or with ``table_rows`` its rows are split over the devices
+    (:func:`kx.sim.lanes.rows_split`: each device holds the rows its lanes play, and a lane's row index is
+    made local to them). Returns, if the last target is not 0, the lanes and parameters compacted to it;
+    then every rung's record of its lanes before its compaction, side by side per device (``[7, n_dev x
+    sum of the rungs' widths per device]``: :data:`COUNTERS`, then the lane id; finished lanes' values are
+    final), and per device and rung the iterations run and the live lanes ``[n_dev, len(targets), 2]``."""
     def local(rows, lane_params, scalars, table):
-        state, index, noise_word, lane_id = lanes.unpack(rows, layout)
-        if table_rows:  # this device's rows of the table: the lanes' rows, counted from its first
-            index = index - jax.lax.axis_index("lanes") * jax.tree.leaves(table)[0].shape[0]
-        lane_params = index if policy.shared else lane_params
         params, group_size, keys = lanes.unpack_scalars(scalars, n_groups, impl)
-        state, progress = _advance_local(state, lane_params, noise_word, lane_id, keys, group_size, params, _NO_CAP,
-                                         jnp.int32(width // n_dev), table, policy=policy, config=config)
-        record = jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id])  # [7, lanes]: one transfer
-        if not width:
-            return record, progress
-        # the state's rows anew, the rest (row index, noise word, id) as they came
-        order = lanes.live_first(state.done, width // n_dev)
-        rows = jnp.take(jnp.concatenate([lanes.pack(state), rows[layout.first_rows():]]), order, axis=-1)
-        if policy.shared:
-            return rows, None, record, progress
-        return rows, jax.tree.map(lambda a: jnp.take(a, order, axis=-1), lane_params), record, progress
+        records, progress = [], []
+        for target in targets:
+            state, index, noise_word, lane_id = lanes.unpack(rows, layout)
+            if table_rows:  # this device's rows of the table: the lanes' rows, counted from its first
+                index = index - jax.lax.axis_index("lanes") * jax.tree.leaves(table)[0].shape[0]
+            state, ran = _advance_local(state, index if policy.shared else lane_params, noise_word, lane_id, keys,
+                                        group_size, params, _NO_CAP, jnp.int32(target // n_dev), table,
+                                        policy=policy, config=config)
+            records.append(jnp.stack([getattr(state, f) for f in COUNTERS] + [lane_id]))  # [7, lanes]
+            progress.append(ran)
+            if not target:
+                break
+            # the state's rows anew, the rest (row index, noise word, id) as they came
+            order = lanes.live_first(state.done, target // n_dev)
+            rows = jnp.take(jnp.concatenate([lanes.pack(state), rows[layout.first_rows():]]), order, axis=-1)
+            if not policy.shared:
+                lane_params = jax.tree.map(lambda a: jnp.take(a, order, axis=-1), lane_params)
+        out = (jnp.concatenate(records, axis=1), jnp.concatenate(progress)[None])
+        if targets[-1]:
+            return (rows, None if policy.shared else lane_params) + out
+        return out
 
     if n_dev == 1:
         return local(rows, lane_params, scalars, table)
     in_specs = (lanes.lane_specs((rows, lane_params)) + (lanes.replicated_specs(scalars),)
                 + ((lanes.row_specs if table_rows else lanes.replicated_specs)(table),))
-    out_specs = (lanes.lane_specs(rows), lanes.PER_DEVICE)
-    if width:
+    out_specs = (lanes.lane_specs(rows), lanes.PER_DEVICE_RUNGS)
+    if targets[-1]:
         out_specs = lanes.lane_specs((rows, lane_params)) + out_specs
     return jax.shard_map(local, mesh=lanes.mesh(n_dev), in_specs=in_specs, out_specs=out_specs, check_vma=False)(
         rows, lane_params, scalars, table)
@@ -257,12 +272,6 @@ def _prepare(starts, policy_params, keys, *, shared, n_groups, n_pol, n_trials, 
         return lanes.pack((state, lane_id // n_trials, noise_word, lane_id)), None
     lane_params = jax.tree.map(lambda p: jnp.moveaxis(jnp.take(p, lane_id // n_trials, axis=0), 0, -1), policy_params)
     return lanes.pack((state, None, noise_word, lane_id)), lane_params
-
-
-@jax.jit
-def _stacked(records, progress):
-    """Every rung's record ``[7, w]`` side by side and every rung's progress stacked, for one transfer each."""
-    return jnp.concatenate(records, axis=1), jnp.stack(progress)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "shape"))
@@ -343,28 +352,24 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
         n_dev)
     if table_rows:
         table = policy_params
-    # The rungs, dispatched back to back: the host waits for none of them and reads what they recorded
-    # (a few integers per lane) once, at the end, in one transfer.
-    chain, impl = rungs(ladder), str(jax.random.key_impl(keys))
-    records, progress = [], []
-    for k in range(len(chain)):
-        nxt = chain[k + 1] if k + 1 < len(chain) else 0
-        *compacted, record, ran = _advance_and_compact(rows, lane_params, scalars, table, policy=policy, config=config,
-                                                   n_dev=n_dev, width=nxt, layout=layout, n_groups=n_groups, impl=impl,
-                                                   table_rows=table_rows)
-        rows, lane_params = compacted if compacted else (None, None)
-        records.append(record)
-        progress.append(ran)
-    packed, progress = (np.asarray(a) for a in _stacked(records, progress))
+    # Every rung in one call (_rungs): each device steps and compacts its own lanes down the ladder without
+    # waiting for the others, and the host reads what the rungs recorded (a few integers per lane) once, at
+    # the end, in one transfer.
+    chain = rungs(ladder)
+    packed, progress = (np.asarray(a) for a in _rungs(
+        rows, lane_params, scalars, table, policy=policy, config=config, n_dev=n_dev, targets=tuple(chain[1:]) + (0,),
+        layout=layout, n_groups=n_groups, impl=str(jax.random.key_impl(keys)), table_rows=table_rows))
+    per_device = [w // n_dev for w in chain]
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
-    for rec in np.split(packed, np.cumsum(chain)[:-1], axis=1):  # later rungs overwrite lanes still live
-        for i, f in enumerate(COUNTERS):
-            results[f][rec[-1]] = rec[i]  # padding lanes repeat a lane and write the same values
+    for block in np.split(packed, n_dev, axis=1):  # each device's rungs, one after another
+        for rec in np.split(block, np.cumsum(per_device)[:-1], axis=1):  # later rungs overwrite lanes still live
+            for i, f in enumerate(COUNTERS):
+                results[f][rec[-1]] = rec[i]  # padding lanes repeat a lane and write the same values
     if counters is not None:
-        ran = progress[:, :, 0]
+        ran = progress[:, :, 0]  # [n_dev, rungs]
         counters.chunks += len(chain)
-        counters.executed_steps += int(sum(int(r.sum()) * (w // n_dev) for r, w in zip(ran, chain)))
-        counters.widths = tuple(w for i, w in enumerate(chain) if i == 0 or ran[i].max() > 0)
+        counters.executed_steps += int((ran.astype(np.int64) * np.array(per_device)).sum())
+        counters.widths = tuple(w for i, w in enumerate(chain) if i == 0 or ran[:, i].max() > 0)
         counters.live_steps += int(results["t"].sum(dtype=np.int64))
     shape = (n_groups, n_pol, n_trials) if grouped else (n_pol, n_trials)
     return _finish(results, params, config=config, shape=shape)

@@ -175,6 +175,8 @@ def live_first(done: jax.Array, k: int) -> jax.Array:
 REPLICATED = jax.sharding.PartitionSpec()
 # per device results stacked along a leading axis, one row per device ([n_dev, ...])
 PER_DEVICE = jax.sharding.PartitionSpec("lanes", None)
+# per device and rung ([n_dev, rungs, ...])
+PER_DEVICE_RUNGS = jax.sharding.PartitionSpec("lanes", None, None)
 # a shared table's rows (its leading axis: the parameter sets) split over the mesh, each device holding
 # the rows its own lanes play (:func:`rows_split`)
 TABLE_ROWS = jax.sharding.PartitionSpec("lanes")
