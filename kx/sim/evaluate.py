@@ -178,6 +178,11 @@ SHRINK = 0.8
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum", "decisions")
 
+#: every rung of an evaluation in one compiled call (:func:`_rungs`). False: one call per rung, dispatched back
+#: to back, as until 2026-12-04, when a call ended with its slowest device (the same episodes;
+#: scripts/rungs_in_one_call.py times the two, the tests check they agree)
+RUNGS_IN_ONE_CALL = True
+
 # no iteration cap inside a rung: every episode ends by max_iterations, so the loop ends by itself
 _NO_CAP = np.int32(2**31 - 1)
 
@@ -356,10 +361,21 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # waiting for the others, and the host reads what the rungs recorded (a few integers per lane) once, at
     # the end, in one transfer.
     chain = rungs(ladder)
-    packed, progress = (np.asarray(a) for a in _rungs(
-        rows, lane_params, scalars, table, policy=policy, config=config, n_dev=n_dev, targets=tuple(chain[1:]) + (0,),
-        layout=layout, n_groups=n_groups, impl=str(jax.random.key_impl(keys)), table_rows=table_rows))
+    targets = tuple(chain[1:]) + (0,)
+    call = functools.partial(_rungs, policy=policy, config=config, n_dev=n_dev, layout=layout, n_groups=n_groups,
+                             impl=str(jax.random.key_impl(keys)), table_rows=table_rows)
     per_device = [w // n_dev for w in chain]
+    if RUNGS_IN_ONE_CALL:
+        packed, progress = (np.asarray(a) for a in call(rows, lane_params, scalars, table, targets=targets))
+    else:  # a call per rung, dispatched back to back, the records put as one call lays them out
+        records, ran = [], []
+        for target in targets:
+            *compacted, record, progress = call(rows, lane_params, scalars, table, targets=(target,))
+            rows, lane_params = compacted if compacted else (None, None)
+            records.append(np.split(np.asarray(record), n_dev, axis=1))
+            ran.append(np.asarray(progress))
+        packed = np.concatenate([rec for d in range(n_dev) for rec in (r[d] for r in records)], axis=1)
+        progress = np.concatenate(ran, axis=1)
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
     for block in np.split(packed, n_dev, axis=1):  # each device's rungs, one after another
         for rec in np.split(block, np.cumsum(per_device)[:-1], axis=1):  # later rungs overwrite lanes still live
