@@ -14,8 +14,9 @@ counts and meets the others only at the end of the call. Until 2026-12-04 each r
 own, and a call ended when its slowest device did: where one device's lanes held the long episodes
 (good genomes: the lanes are policy-major, so a device holds one half of the population) it ran the
 whole tail in one rung while the other waited, then the other ran its tail in the next rung while the
-first waited. Trained HyperNEAT 4v3 populations evaluated 1.0-2.6 times as fast in one call (the same
-episodes), NEAT's groups of 16 runs about 1.04 times (scripts/rungs_in_one_call.py).
+first waited. On populations 50 generations into the protocol's 4v3 cells, one call evaluated HyperNEAT's
+1.05-1.62 times and NEAT's 1.18-2.09 times as fast (the same episodes; scripts/rungs_in_one_call.py), a NEAT
+group of 16 runs (8 on each device) about 1.04 times.
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
 ``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
 is :mod:`kx.sim.lanes`; this module steps them.
