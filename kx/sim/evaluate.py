@@ -15,7 +15,7 @@ own, and a call ended when its slowest device did: where one device's lanes held
 (good genomes: the lanes are policy-major, so a device holds one half of the population) it ran the
 whole tail in one rung while the other waited, then the other ran its tail in the next rung while the
 first waited. On populations 50 generations into the protocol's 4v3 cells, one call evaluated HyperNEAT's
-1.05-1.62 times and NEAT's 1.18-2.09 times as fast (the same episodes; scripts/rungs_in_one_call.py), a NEAT
+1.04-2.63 times and NEAT's 1.45-2.06 times as fast (the same episodes; scripts/rungs_in_one_call.py), a NEAT
 group of 16 runs (8 on each device) about 1.04 times.
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
 ``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
@@ -368,15 +368,16 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     per_device = [w // n_dev for w in chain]
     if RUNGS_IN_ONE_CALL:
         packed, progress = (np.asarray(a) for a in call(rows, lane_params, scalars, table, targets=targets))
-    else:  # a call per rung, dispatched back to back, the records put as one call lays them out
+    else:  # a call per rung, dispatched back to back (read once all are), the records laid out as one call's
         records, ran = [], []
         for target in targets:
             *compacted, record, progress = call(rows, lane_params, scalars, table, targets=(target,))
             rows, lane_params = compacted if compacted else (None, None)
-            records.append(np.split(np.asarray(record), n_dev, axis=1))
-            ran.append(np.asarray(progress))
-        packed = np.concatenate([rec for d in range(n_dev) for rec in (r[d] for r in records)], axis=1)
-        progress = np.concatenate(ran, axis=1)
+            records.append(record)
+            ran.append(progress)
+        records = [np.split(np.asarray(r), n_dev, axis=1) for r in records]
+        packed = np.concatenate([r[d] for d in range(n_dev) for r in records], axis=1)
+        progress = np.concatenate([np.asarray(r) for r in ran], axis=1)
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
     for block in np.split(packed, n_dev, axis=1):  # each device's rungs, one after another
         for rec in np.split(block, np.cumsum(per_device)[:-1], axis=1):  # later rungs overwrite lanes still live
