@@ -15,8 +15,8 @@ own, and a call ended when its slowest device did: where one device's lanes held
 (good genomes: the lanes are policy-major, so a device holds one half of the population) it ran the
 whole tail in one rung while the other waited, then the other ran its tail in the next rung while the
 first waited. On populations 50 generations into the protocol's 4v3 cells, one call evaluated HyperNEAT's
-1.04-2.63 times and NEAT's 1.45-2.06 times as fast (the same episodes; scripts/rungs_in_one_call.py), a NEAT
-group of 16 runs (8 on each device) about 1.04 times.
+1.04-2.63 times and NEAT's 1.45-2.06 times as fast (the same episodes; scripts/rungs_in_one_call.py); a NEAT
+group of 16 runs (8 on each device) is balanced already and gained about 1.1 times.
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
 ``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
 is :mod:`kx.sim.lanes`; this module steps them.
