@@ -45,7 +45,13 @@ def main(argv=None) -> None:
     p.add_argument("folder", type=pathlib.Path)
     p.add_argument("others", type=pathlib.Path, nargs="*")
     p.add_argument("--scale", type=pathlib.Path, help="a one-run-a-cell folder to scale to the full protocol")
+    p.add_argument("--versus", metavar="METHOD:BASE", help="a method's target generation against another's")
     args = p.parse_args(argv)
+    methods = set(t3.METHODS)
+    if args.versus is not None:
+        pair = args.versus.split(":")
+        if len(pair) != 2 or not set(pair) <= methods:
+            p.error(f"--versus: allowed METHOD:BASE with each of {sorted(methods)}, got {args.versus!r}")
     rows = t3.read_results(args.folder / "results.csv")
     others = {o: t3.read_results(o / "results.csv") for o in args.others}
     cells = _cells(rows)
@@ -82,6 +88,31 @@ def main(argv=None) -> None:
         print(f"full protocol from {args.scale}: {base / 3600:.1f} h; each method's sources and targets scaled by "
               f"their ratio here ({', '.join(f'{m} {p} {f:.2f}' for (m, p), f in sorted(factor.items()))}; "
               f"1.0 without a cell here): {est / 3600:.1f} h (an estimate)")
+    if args.versus:
+        _versus(cells, *args.versus.split(":"))
+
+
+def _versus(cells, method: str, base: str) -> None:
+    """Prints ``method``'s target generation against ``base``'s, cell by cell and pooled over each task."""
+    def sums(rs):
+        gens = sum(int(r["generations"]) for r in rs)
+        return (sum(float(r["generation_seconds"]) for r in rs) / gens,
+                sum(float(r["wall_seconds"]) for r in rs) / gens)
+    print(f"\n| target | setup | {method} runs | {base} runs | {method} / {base}: s per generation "
+          "(generations' own) | (wall) |")
+    print("|---|---|---|---|---|---|")
+    pooled = collections.defaultdict(lambda: ([], []))
+    for (m, phase, target, setup), rs in sorted(cells.items()):
+        other = cells.get((base, phase, target, setup))
+        if m != method or phase != "target" or not other:
+            continue
+        pooled[target][0].extend(rs)
+        pooled[target][1].extend(other)
+        (g, w), (bg, bw) = sums(rs), sums(other)
+        print(f"| {target} | {setup} | {len(rs)} | {len(other)} | {g / bg:.2f} | {w / bw:.2f} |")
+    for target, (rs, other) in sorted(pooled.items()):
+        (g, w), (bg, bw) = sums(rs), sums(other)
+        print(f"| {target} | every setup both ran | {len(rs)} | {len(other)} | {g / bg:.2f} | {w / bw:.2f} |")
 
 
 if __name__ == "__main__":
