@@ -11,6 +11,15 @@ __version__ = "0.1.0"
 AVX512_KERNELS = frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})
 
 
+def _cpu_flags() -> set[str]:
+    """The CPU's feature flags (/proc/cpuinfo's first ``flags`` line; empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return set(next(line for line in f if line.startswith("flags")).split())
+    except (OSError, StopIteration):
+        return set()
+
+
 def _pin_openblas_kernels() -> None:
     """Pins the OpenBLAS kernels of JAX's CPU linear algebra, before they load, on CPUs with AVX-512.
 
@@ -24,12 +33,7 @@ def _pin_openblas_kernels() -> None:
     or ``inherit`` to keep the environment's. A scipy loaded before kx keeps the kernels it loaded with."""
     want = _os.environ.get("KX_OPENBLAS_CORETYPE")
     if want is None:
-        try:
-            with open("/proc/cpuinfo") as f:
-                flags = set(next(line for line in f if line.startswith("flags")).split())
-        except (OSError, StopIteration):
-            return
-        if not AVX512_KERNELS <= flags:
+        if not AVX512_KERNELS <= _cpu_flags():
             return
         want = "SkylakeX"
     if want != "inherit":

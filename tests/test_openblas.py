@@ -7,14 +7,6 @@ import sys
 import kx
 
 
-def _cpu_flags():
-    try:
-        with open("/proc/cpuinfo") as f:
-            return set(next(line for line in f if line.startswith("flags")).split())
-    except (OSError, StopIteration):
-        return set()
-
-
 def _coretype_after_import(**env):
     base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE", "KX_OPENBLAS_CORETYPE")}
     out = subprocess.run([sys.executable, "-c", "import os, kx; print(os.environ.get('OPENBLAS_CORETYPE'))"],
@@ -23,7 +15,7 @@ def _coretype_after_import(**env):
 
 
 def test_an_avx512_cpu_gets_skylakex_kernels_over_the_environments_and_other_cpus_keep_theirs():
-    pinned = kx.AVX512_KERNELS <= _cpu_flags()
+    pinned = kx.AVX512_KERNELS <= kx._cpu_flags()
     assert _coretype_after_import(OPENBLAS_CORETYPE="Haswell") == ("SkylakeX" if pinned else "Haswell")
     assert _coretype_after_import() == ("SkylakeX" if pinned else "None")
 
