@@ -42,11 +42,9 @@ RUNS = {
 
 def cpu_features() -> list[str]:
     """The CPU's vector extensions that XLA CPU may use (from /proc/cpuinfo; empty where it is missing)."""
-    try:
-        flags = next(line for line in open("/proc/cpuinfo") if line.startswith("flags")).split(":")[1].split()
-    except (OSError, StopIteration):
-        return []
-    return sorted(f for f in flags if f.startswith(("avx", "fma", "sse4")))
+    import kx
+
+    return sorted(f for f in kx._cpu_flags() if f.startswith(("avx", "fma", "sse4")))
 
 
 #: the extensions that decide how XLA CPU rounds float32 (vector width, fused multiply-add); the others
