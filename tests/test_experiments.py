@@ -676,6 +676,19 @@ def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost
     assert [c["method"] for c in cells] == sorted((c["method"] for c in cells), key=t3.METHODS.index)
 
 
+def test_the_finished_protocol_is_short_only_of_ppo_whose_runs_are_not_costed():
+    """docs/results/protocol_full: every cell of NEAT, HyperNEAT and CMA-ES at 20 runs; what the report lists still
+    to run is PPO's 7 cells, with no run of PPO to cost them by, and it says so rather than "0.0 hours"."""
+    committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "protocol_full"
+    rows = t3.read_results(committed / "results.csv")
+    assert len(rows) == len(t3.plan(("neat", "hyperneat", "cma_es"), runs=design.RUNS_PER_CELL)) == 700
+    cells = report.still_to_run(rows)
+    assert {c["method"] for c in cells} == {"ppo"} and [c["missing"] for c in cells] == [20] * 7
+    text = "\n".join(report._still_to_run(rows))
+    assert "In all 140 runs, none of them costed (no run of their method's phase here)." in text
+    assert "hours**" not in text and "--methods ppo --targets 4v3,5v3,6v4" in text
+
+
 def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_claims_they_enter():
     from kx.experiments import report
 

@@ -470,7 +470,9 @@ def _still_to_run(rows: list[dict]) -> list[str]:
              "the missing runs cost one after another on this machine at the Cost table's mean wall time per run "
              "(\\*: a target with no run of its method yet, costed at the method's other targets; —: no run of "
              "the method's phase to cost it by). A protocol folder holding only results.csv, protocol.json and "
-             "this report extends anywhere: a missing source re-runs and must reproduce its row.", "",
+             "this report extends on another machine: a missing source is trained again first and must reproduce its "
+             "row, or it is set aside and its targets do not run (docs/experiments.md, \"Extendable anywhere\", "
+             "says which machines give the same runs).", "",
              "| method | phase | task | setup | runs here | missing | hours |", "|---|---|---|---|---|---|---|"]
     for c in cells:
         setup = c["setup"] if c["phase"] == "source" else t3.SETUPS[c["setup"]].label
@@ -478,9 +480,10 @@ def _still_to_run(rows: list[dict]) -> list[str]:
         lines.append(f"| {METHOD_NAMES[c['method']]} | {c['phase']} | {c['target']} | {setup} | {c['runs']} | "
                      f"{c['missing']} | {hours} |")
     costed = [c["seconds"] for c in cells if c["seconds"] is not None]
-    lines += ["", f"In all {sum(c['missing'] for c in cells)} runs, **{sum(costed) / 3600:.1f} hours** for those "
-              f"costed. To run them (each command resumes what is under way and skips what is done; `--targets` "
-              "and `--setups` narrow it further):", "", "```"]
+    cost = (f"**{sum(costed) / 3600:.1f} hours** for those costed" if costed
+            else "none of them costed (no run of their method's phase here)")
+    lines += ["", f"In all {sum(c['missing'] for c in cells)} runs, {cost}. To run them (each command resumes "
+              "what is under way and skips what is done; `--targets` and `--setups` narrow it further):", "", "```"]
     for m in dict.fromkeys(c["method"] for c in cells):
         targets = [t for t in t3.TARGETS if any(c["method"] == m and c["target"] == t for c in cells)]
         lines.append(f"python -m kx.experiments table3 --runs {design.RUNS_PER_CELL} --methods {m} "
