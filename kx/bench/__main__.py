@@ -25,8 +25,8 @@ baseline is measured in the same run (these machines are shared and noisy).
   run seeded with a 3v2 run's final population against that of a fresh run, on the same held-out
   test states of the target.
 * ``runs``: R = 1, 4 and 16 runs of the default config (20 generations) trained as one batched group
-  (``kx.train --seeds``) against the same runs one after another in one process: runs per hour, warm
-  and with compilation, and the ratio.
+  (``kx.train --seeds``) against the same runs one after another in one process, in ``--rounds`` rounds
+  taken in turn: runs per hour, warm and with compilation, and the ratio (warm: the median of the rounds').
 * ``policies``: the cost per live step of the heuristic's whole step, NEAT's and HyperNEAT's on trained 4v3
   populations (committed fixtures, ``scripts/make_policy_fixtures.py``), each a ratio to the heuristic's
   measured in the same run, and each decision alone.
@@ -78,6 +78,8 @@ def main(argv=None) -> None:
                    help="neat_generation, generation, hyperneat: generations to run")
     p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
     p.add_argument("--group-sizes", default="1,4,16", help="runs: the group sizes R (seeds 0..R-1)")
+    p.add_argument("--rounds", type=int, default=1,
+                   help="runs: rounds in turn per R (the group, then its seeds alone); the median ratio is reported")
     p.add_argument("--runs", type=int, default=100, help="neat_xor: independent runs")
     p.add_argument("--width", type=int, default=1, help="neat_xor: populations evolved side by side per device")
     p.add_argument("--devices", type=int, default=0,
