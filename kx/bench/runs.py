@@ -16,6 +16,7 @@ for 3 generations; a group of R for one generation), so that neither side's figu
 first-call costs (loading programs from the persistent cache, first dispatches); their compilation counts
 in the compilation figure of their side. The last line is the ratio at the largest R.
 """
+
 from __future__ import annotations
 
 import time
