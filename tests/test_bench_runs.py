@@ -13,10 +13,12 @@ from kx.bench import runs
 
 
 def test_the_warm_ratio_is_the_median_of_each_rounds_own_ratio():
-    # rounds of (alone, group) warm seconds: ratios 2.0, 1.5, 0.8 -> median 1.5, not the ratio of the medians
-    # (alone 3.0 over group 2.0 = 1.5 here too) nor of the sums (9.0 / 6.5)
+    # rounds of (alone, group) warm seconds: ratios 2.0, 1.5, 0.8 -> median 1.5, not the ratio of the sums
+    # (9.0 / 6.5)
     ratio, ratios = runs.ratio_of_rounds([(4.0, 2.0), (3.0, 2.0), (2.0, 2.5)])
     assert ratios == [2.0, 1.5, 0.8] and ratio == 1.5
+    # ratios 2.0, 0.5, 3.0 -> median 2.0, not the ratio of the medians (3.0 over 2.0) nor of the sums (8 / 5)
+    assert runs.ratio_of_rounds([(4.0, 2.0), (1.0, 2.0), (3.0, 1.0)]) == (2.0, [2.0, 0.5, 3.0])
     # an even number of rounds: the mean of the middle two
     assert runs.ratio_of_rounds([(1.0, 1.0), (3.0, 1.0)]) == (2.0, [1.0, 3.0])
     # a group slower in its round than its runs alone counts below 1 whatever the other rounds' speed

@@ -107,7 +107,7 @@ def run(args) -> None:
             warm_group = trainer_lib.RunGroup.from_configs([other(warm_seed + 1 + i, 1) for i in range(r)])
             warm_group.step(warm_group.init())
         _, _, warm_compile = timed(warm_up)
-        rounds, first = [], None
+        rounds = []
         for k in range(args.rounds):
             rows, wall_b, compile_b = grouped(r)
             ran = [alone(c) for c in cfgs[:r]]
@@ -120,12 +120,12 @@ def run(args) -> None:
             rounds.append((warm_1, warm_b))
             print(f"  R = {r} round {k + 1}: batched {warm_b:.1f} s warm, one after another {warm_1:.1f} s warm, "
                   f"ratio {warm_1 / warm_b:.2f}", flush=True)
-            if first is None:
-                first = (wall_b, compile_b, warm_b, warm_1)
+            if k == 0:
+                first_wall, first_compiling = wall_b, compile_b
         ratio, ratios = ratio_of_rounds(rounds)
-        wall_b, compile_b, warm_b1, warm_11 = first
+        warm_11, warm_b1 = rounds[0]
         # with compilation (the first round): each side charged with every program it compiled
-        wall, compiling = wall_b + warm_compile, compile_b + warm_compile
+        wall, compiling = first_wall + warm_compile, first_compiling + warm_compile
         one_compile = sum(first_compile[c.seed] for c in cfgs[:r]) + warm_compile_alone
         one_wall = warm_11 + one_compile
         warm_b = float(np.median([b for _, b in rounds]))
