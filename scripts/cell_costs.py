@@ -13,12 +13,19 @@ ratio of FOLDER's wall per run to ONE_RUN_FOLDER's over the cells both hold (the
 cell against ONE_RUN_FOLDER's runs of it, averaged over the method's cells of that phase). That assumes the
 ratio measured on FOLDER's cells (batched groups of a full cell, compilation spread over its runs) holds in
 the method's other cells of the phase; it is an estimate, printed as one.
+
+``--versus METHOD:BASE``: METHOD's target generation against BASE's, cell by cell and pooled over each
+task's setups (s per generation, each run's share of its group's time). Where FOLDER still holds the run
+directories (a live protocol folder; committed ones hold only results.csv), that ratio is split in two:
+the live steps a generation plays (how long the populations' episodes last, which is what they learned,
+from each run's metrics.csv) times the seconds per live step (what the method costs per step of play).
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import csv
 import pathlib
 
 import numpy as np
@@ -90,6 +97,7 @@ def main(argv=None) -> None:
               f"1.0 without a cell here): {est / 3600:.1f} h (an estimate)")
     if args.versus:
         _versus(cells, *args.versus.split(":"))
+        _versus_live_steps(args.folder, cells, *args.versus.split(":"))
 
 
 def _versus(cells, method: str, base: str) -> None:
@@ -113,6 +121,47 @@ def _versus(cells, method: str, base: str) -> None:
     for target, (rs, other) in sorted(pooled.items()):
         (g, w), (bg, bw) = sums(rs), sums(other)
         print(f"| {target} | every setup both ran | {len(rs)} | {len(other)} | {g / bg:.2f} | {w / bw:.2f} |")
+
+
+def _live_steps(folder: pathlib.Path, row: dict) -> int | None:
+    """The live steps of a row's run over all its generations (its run directory's metrics.csv), or None
+    where the folder does not hold the run directory (a committed folder holds only results.csv)."""
+    spec = t3.RunSpec(row["method"], row["setup"], row["phase"], row["target"], int(row["run"]))
+    path = t3.run_dir(folder, spec) / "metrics.csv"
+    if not path.is_file():
+        return None
+    with open(path, newline="") as f:
+        return sum(int(r["live_steps"]) for r in csv.DictReader(f))
+
+
+def _versus_live_steps(folder: pathlib.Path, cells, method: str, base: str) -> None:
+    """:func:`_versus`'s ratio split in two, where the folder holds the run directories: the live steps a
+    generation plays (how long the populations' episodes last: what they learned) times the seconds per
+    live step (what the method's policy and its generation cost). The product is the s-per-generation
+    ratio. Prints nothing when some run directory of a compared cell is missing."""
+    def sums(rs, steps):
+        gens = sum(int(r["generations"]) for r in rs)
+        live = sum(steps[t3.row_key(r)] for r in rs)
+        return live / gens, sum(float(r["generation_seconds"]) for r in rs) / live
+    pairs = [(key, rs, cells[(base,) + key[1:]]) for key, rs in sorted(cells.items())
+             if key[0] == method and key[1] == "target" and (base,) + key[1:] in cells]
+    rows = [r for _, rs, other in pairs for r in rs + other]
+    steps = {t3.row_key(r): _live_steps(folder, r) for r in rows}
+    if not pairs or None in steps.values():
+        return
+    print(f"\n| target | setup | {method} / {base}: live steps per generation | s per live step | "
+          "product: s per generation |")
+    print("|---|---|---|---|---|")
+    pooled = collections.defaultdict(lambda: ([], []))
+    lines = []
+    for (_, _, target, setup), rs, other in pairs:
+        pooled[target][0].extend(rs)
+        pooled[target][1].extend(other)
+        lines.append((target, setup, rs, other))
+    lines += [(target, "every setup both ran", rs, other) for target, (rs, other) in sorted(pooled.items())]
+    for target, setup, rs, other in lines:
+        (live, sec), (b_live, b_sec) = sums(rs, steps), sums(other, steps)
+        print(f"| {target} | {setup} | {live / b_live:.2f} | {sec / b_sec:.2f} | {live * sec / (b_live * b_sec):.2f} |")
 
 
 if __name__ == "__main__":
