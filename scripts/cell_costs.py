@@ -100,6 +100,20 @@ def main(argv=None) -> None:
         _versus_live_steps(args.folder, cells, *args.versus.split(":"))
 
 
+def _compared(cells, method: str, base: str) -> list[tuple[str, str, list, list]]:
+    """``(target, setup, method's rows, base's rows)`` of every target cell both methods ran, then of each
+    task pooled over those setups (setup ``"every setup both ran"``)."""
+    out, pooled = [], collections.defaultdict(lambda: ([], []))
+    for (m, phase, target, setup), rs in sorted(cells.items()):
+        other = cells.get((base, phase, target, setup))
+        if m != method or phase != "target" or not other:
+            continue
+        pooled[target][0].extend(rs)
+        pooled[target][1].extend(other)
+        out.append((target, setup, rs, other))
+    return out + [(target, "every setup both ran", rs, other) for target, (rs, other) in sorted(pooled.items())]
+
+
 def _versus(cells, method: str, base: str) -> None:
     """Prints ``method``'s target generation against ``base``'s, cell by cell and pooled over each task."""
     def sums(rs):
@@ -109,18 +123,9 @@ def _versus(cells, method: str, base: str) -> None:
     print(f"\n| target | setup | {method} runs | {base} runs | {method} / {base}: s per generation "
           "(generations' own) | (wall) |")
     print("|---|---|---|---|---|---|")
-    pooled = collections.defaultdict(lambda: ([], []))
-    for (m, phase, target, setup), rs in sorted(cells.items()):
-        other = cells.get((base, phase, target, setup))
-        if m != method or phase != "target" or not other:
-            continue
-        pooled[target][0].extend(rs)
-        pooled[target][1].extend(other)
+    for target, setup, rs, other in _compared(cells, method, base):
         (g, w), (bg, bw) = sums(rs), sums(other)
         print(f"| {target} | {setup} | {len(rs)} | {len(other)} | {g / bg:.2f} | {w / bw:.2f} |")
-    for target, (rs, other) in sorted(pooled.items()):
-        (g, w), (bg, bw) = sums(rs), sums(other)
-        print(f"| {target} | every setup both ran | {len(rs)} | {len(other)} | {g / bg:.2f} | {w / bw:.2f} |")
 
 
 def _live_steps(folder: pathlib.Path, row: dict) -> int | None:
@@ -139,28 +144,20 @@ def _versus_live_steps(folder: pathlib.Path, cells, method: str, base: str) -> N
     generation plays (how long the populations' episodes last: what they learned) times the seconds per
     live step (what the method's policy and its generation cost). The product is the s-per-generation
     ratio. Prints nothing when some run directory of a compared cell is missing."""
-    def sums(rs, steps):
+    compared = _compared(cells, method, base)
+    steps = {t3.row_key(r): _live_steps(folder, r) for _, _, rs, other in compared for r in rs + other}
+    if not compared or None in steps.values():
+        return
+
+    def sums(rs):
         gens = sum(int(r["generations"]) for r in rs)
         live = sum(steps[t3.row_key(r)] for r in rs)
         return live / gens, sum(float(r["generation_seconds"]) for r in rs) / live
-    pairs = [(key, rs, cells[(base,) + key[1:]]) for key, rs in sorted(cells.items())
-             if key[0] == method and key[1] == "target" and (base,) + key[1:] in cells]
-    rows = [r for _, rs, other in pairs for r in rs + other]
-    steps = {t3.row_key(r): _live_steps(folder, r) for r in rows}
-    if not pairs or None in steps.values():
-        return
     print(f"\n| target | setup | {method} / {base}: live steps per generation | s per live step | "
           "product: s per generation |")
     print("|---|---|---|---|---|")
-    pooled = collections.defaultdict(lambda: ([], []))
-    lines = []
-    for (_, _, target, setup), rs, other in pairs:
-        pooled[target][0].extend(rs)
-        pooled[target][1].extend(other)
-        lines.append((target, setup, rs, other))
-    lines += [(target, "every setup both ran", rs, other) for target, (rs, other) in sorted(pooled.items())]
-    for target, setup, rs, other in lines:
-        (live, sec), (b_live, b_sec) = sums(rs, steps), sums(other, steps)
+    for target, setup, rs, other in compared:
+        (live, sec), (b_live, b_sec) = sums(rs), sums(other)
         print(f"| {target} | {setup} | {live / b_live:.2f} | {sec / b_sec:.2f} | {live * sec / (b_live * b_sec):.2f} |")
 
 
