@@ -2,6 +2,9 @@
 batched query of a population equals each CPPN's own network evaluated link by link."""
 
 import math
+import os
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -157,3 +160,67 @@ def test_the_batched_query_equals_each_cppn_network_on_every_link():
     trimmed = sb.build(pop, CFG, s, rows=rows)
     for k in out:
         np.testing.assert_array_equal(np.asarray(trimmed[k]), np.asarray(out[k]), err_msg=k)
+
+
+def _same_bits(got, ref, keep=slice(None)):
+    for k in ("w", "b"):
+        np.testing.assert_array_equal(np.asarray(got[k]).view(np.uint32), np.asarray(ref[k]).view(np.uint32)[keep],
+                                      err_msg=k)
+
+
+def _chains():
+    """Ten hand-made CPPNs with chains of 0 to 6 hidden nodes (the capacity), each from most inputs and most
+    hidden nodes before it, into most outputs, of every activation."""
+    rng = np.random.default_rng(7)
+    inputs, hidden_ids, outputs = [X1, Y1, X2, Y2, B], list(range(H, H + 6)), [O_W, O_E, O_B]
+    counts = (0, 1, 2, 3, 4, 5, 6, 6, 3, 4)  # every segment of the capacity's widths (2, 4, 6)
+    genomes = []
+    for n_hidden in counts:
+        hid = hidden_ids[:n_hidden]
+        links = [(s, d, float(rng.normal(0, 2.0))) for d in hid for s in inputs + hid[:hid.index(d)]
+                 if rng.random() < 0.8]
+        links += [(s, d, float(rng.normal(0, 2.0))) for d in outputs for s in inputs + hid if rng.random() < 0.7]
+        genomes.append(hand_genome(links, hidden_acts=tuple(str(a) for a in rng.choice(OPTS, n_hidden))))
+    return jax.tree.map(lambda *a: jnp.stack(a), *genomes), np.array(counts)
+
+
+def check_the_build_against_the_reference() -> None:
+    pop, counts = _chains()
+    s = sb.Substrate(distance_input=False)
+    ref = sb.build(pop, CFG, s, reference=True)
+    _same_bits(sb.build(pop, CFG, s), ref)  # every hidden row kept (the capacity, 6)
+    few = counts <= 4  # 4 rows, as the run loop builds a population of at most 4
+    four = jax.tree.map(lambda a: a[few], pop)
+    _same_bits(sb.build(four, CFG, s, rows=4), ref, few)
+    _same_bits(sb.build(four, CFG, s, rows=4, reference=True), ref, few)
+
+    from kx.bench.policies import load_fixture
+
+    trainer, trained, _ = load_fixture("hyperneat")
+    enc = trainer.encoding
+    ref = sb.build(trained, enc.neat_config, enc.substrate, reference=True)
+    _same_bits(enc.policy_params(trained), ref)  # as the run loop builds it: 8 rows, over the devices
+    rows, devices = sb.hidden_rows(trained, enc.neat_config), jax.local_device_count()
+    _same_bits(sb.build(trained, enc.neat_config, enc.substrate, devices, rows, reference=True), ref)
+
+
+def test_the_build_is_bit_for_bit_the_reference_with_every_hidden_row_and_every_bias():
+    """:func:`sb.build` reads only the hidden rows each node's sum needs (2, 4, then ``rows``) and computes
+    the bias output only on the diagonal: every bit of every weight and bias as the reference (every row,
+    every output on every link, ``reference=True``; with 4 rows too, as before 2026-12-05), on hand-made
+    chains of hidden nodes and on the trained 4v3 CPPNs of ``kx.bench policies``. In a process of its own,
+    under XLA's default flags, which the run loop compiles with: there a sum over one row, which XLA fuses
+    with the addition after it into one multiply-add, changed 507 of the chains' weights and 9 of the
+    trained CPPNs' 60,000 biases, where the suite's flags fuse nothing of it (and the run-directory
+    fixture, tests/test_run_dir_fixture.py, checks HyperNEAT's runs under those)."""
+    env = {**os.environ, "XLA_FLAGS": ""}
+    done = subprocess.run([sys.executable, __file__], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and "the same bits" in done.stdout, done.stdout + done.stderr
+
+
+if __name__ == "__main__":  # the check under XLA's default flags (the test above runs it so)
+    from kx import runtime
+
+    runtime.setup()
+    check_the_build_against_the_reference()
+    print("the same bits")

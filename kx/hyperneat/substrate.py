@@ -25,8 +25,10 @@ coordinates: 0.1 per cell, at most 1.9 sqrt 2):
 **One batched query per generation.** :func:`build` evaluates every CPPN of a population over all
 ``N^2`` link coordinates: per genome, the outputs' part from the inputs (a ``[3, n_in] x [n_in, N^2]``
 product), then the genome's own hidden nodes in topological order (as many as it has, not the
-capacity), each from the inputs and the hidden values before it, through its own activation function
-(selected per genome, so only that function is computed), added into the outputs. Genomes go one after another
+capacity), each from the inputs and the hidden values before it (only the hidden rows it can read:
+:func:`cppn_outputs`), through its own activation function (selected per genome, so only that function is
+computed), added into the outputs; the bias output only at the 400 links it is read at (the diagonal, see
+output 2 above). Genomes go one after another
 (``lax.map``): each is a wide, fully vectorised computation over 160,000 links, and the activation of a
 hidden node is a real branch rather than every function of the set computed and masked. The result
 is the generation's table ``{"w": [P, N, N], "b": [P, N]}`` (``w[g, o, i]``: genome ``g``'s weight from
@@ -119,17 +121,35 @@ def _switch(act: jax.Array, x: jax.Array, options: tuple[str, ...]) -> jax.Array
     return jax.lax.switch(act, [ACTIVATIONS[name] for name in options], x)
 
 
+def _dot_widths(rows: int) -> tuple[int, ...]:
+    """The widths of the sums over earlier hidden nodes :func:`cppn_outputs` takes (see there): 2, 4, 8, ...
+    below ``rows``, then ``rows``. None of 1: XLA rewrites a dot over one row as a product, which it may
+    then fuse with the addition after it into one multiply-add, a rounding fewer than the dot's sum."""
+    return tuple(k for k in (2, 4, 8, 16, 32, 64) if k < rows) + (rows,)
+
+
 def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config: NEATConfig,
-                 rows: int | None = None) -> jax.Array:
+                 rows: int | None = None, last_at: np.ndarray | None = None):
     """Outputs ``[n_outputs, L]`` of one CPPN's network (not vmapped) for inputs ``x [n_inputs, L]``,
     computing only its first ``n_hidden`` hidden rows (the genome's hidden nodes, a prefix of its slots).
 
-    ``rows`` (at least ``n_hidden``; default the capacity): the hidden values kept, and so the length of
-    each hidden node's sum over the hidden nodes before it. The slots past the genome's hidden nodes add
+    ``rows`` (at least ``n_hidden``; default the capacity): the hidden values kept, and so the longest of
+    the hidden nodes' sums over the hidden nodes before them. The slots past the genome's hidden nodes add
     ``0 * 0`` terms, so fewer rows give the same values as reals (at most a zero's sign differs, as in
     :func:`kx.neat.network.trim`), for less work: 150 trained 4v3 CPPNs of 3-4 hidden nodes at 4 rows
     (and split over 2 CPU devices) build in 152 ms against 209 ms with all 16 on one device
-    (``scripts/hyperneat_table_placement.py``)."""
+    (``scripts/hyperneat_table_placement.py``).
+
+    The same holds within a query: hidden node ``i``'s sum over the hidden rows reads only the first
+    ``k >= i`` of them, ``k`` the narrowest of :func:`_dot_widths` (rows ``i`` and later are still 0).
+    XLA CPU computes each of these ``jnp.dot``s as one fused multiply-add after another from +0, row by
+    row, so the rows left out changed nothing, not even a zero's sign (tests/test_substrate.py checks it
+    against the sum over every row).
+
+    ``last_at`` (indices of ``x``'s columns): the last output only at those columns; returns ``(first
+    outputs [n_outputs - 1, L], last output [len(last_at)])`` (the substrate's biases are read at 400 of
+    the 160,000 links: the other 159,600 values of that output, their activations and their share of
+    each hidden node's update were computed for nothing). Each value is the same as without it."""
     h, o, n_in = config.n_hidden, config.n_outputs, config.n_inputs
     rows = h if rows is None else rows
     opts = config.activation_options
@@ -139,20 +159,60 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
         return jnp.dot(rows[:, :n_in], x, precision=hp) + rows[:, n_in:]
 
     out = from_inputs(net.w_in[h:])
+    split = o if last_at is None else o - 1
+    out, last = out[:split], (None if last_at is None else out[split][last_at])
     if h:
-        def body(i, carry):  # hidden node i: from the inputs and the hidden nodes before it; into the outputs
-            hid, out = carry
+        def body(width, i, carry):  # hidden node i: from the inputs and the hidden nodes before it; into the outputs
+            hid, out, last = carry
             row = jax.lax.dynamic_slice_in_dim(net.w_in, i, 1)
-            hi = _switch(net.act[i], from_inputs(row)[0] + jnp.dot(net.w_hid[i, :rows], hid, precision=hp), opts)
-            return hid.at[i].set(hi), out + net.w_hid[h:, i][:, None] * hi[None]
+            hi = _switch(net.act[i], from_inputs(row)[0] + jnp.dot(net.w_hid[i, :width], hid[:width], precision=hp),
+                         opts)
+            out = out + net.w_hid[h:h + split, i][:, None] * hi[None]
+            if last_at is not None:
+                last = last + net.w_hid[h + split, i] * hi[last_at]
+            return hid.at[i].set(hi), out, last
 
+        carry = (jnp.zeros((rows, x.shape[1]), jnp.float32), out, last)
+        first = 0  # nodes first..width read `width` rows (hidden node i needs i of them)
+        for width in _dot_widths(rows):
+            end = rows if width == rows else width + 1
+            carry = jax.lax.fori_loop(first, jnp.minimum(n_hidden, end), functools.partial(body, width), carry)
+            first = end
+        _, out, last = carry
+    outs = jnp.stack([_switch(net.act[h + k], out[k], opts) for k in range(split)])
+    if last_at is None:
+        return outs
+    return outs, _switch(net.act[h + split], last, opts)
+
+
+def _reference_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config: NEATConfig,
+                       rows: int | None = None) -> jax.Array:
+    """:func:`cppn_outputs` as it was until 2026-12-05, kept as the reference it is checked against bit for
+    bit (``build(..., reference=True)``): each hidden node's sum over all ``rows`` hidden rows, and every
+    output on every link (``[n_outputs, L]``)."""
+    h, o, n_in = config.n_hidden, config.n_outputs, config.n_inputs
+    rows = h if rows is None else rows
+    opts = config.activation_options
+    hp = jax.lax.Precision.HIGHEST
+
+    def from_inputs(rows):
+        return jnp.dot(rows[:, :n_in], x, precision=hp) + rows[:, n_in:]
+
+    def body(i, carry):
+        hid, out = carry
+        row = jax.lax.dynamic_slice_in_dim(net.w_in, i, 1)
+        hi = _switch(net.act[i], from_inputs(row)[0] + jnp.dot(net.w_hid[i, :rows], hid, precision=hp), opts)
+        return hid.at[i].set(hi), out + net.w_hid[h:, i][:, None] * hi[None]
+
+    out = from_inputs(net.w_in[h:])
+    if h:
         _, out = jax.lax.fori_loop(0, n_hidden, body, (jnp.zeros((rows, x.shape[1]), jnp.float32), out))
     return jnp.stack([_switch(net.act[h + k], out[k], opts) for k in range(o)])
 
 
-@functools.partial(jax.jit, static_argnames=("config", "substrate", "devices", "rows"))
+@functools.partial(jax.jit, static_argnames=("config", "substrate", "devices", "rows", "reference"))
 def build(population: Genome, config: NEATConfig, substrate: Substrate, devices: int = 1,
-          rows: int | None = None) -> dict:
+          rows: int | None = None, reference: bool = False) -> dict:
     """The substrates of a population of CPPNs (leading axis P): ``{"w": [P, N, N], "b": [P, N]}``
     (see the module docstring). ``rows``: the hidden rows each CPPN's query keeps (:func:`cppn_outputs`),
     at least the population's most hidden nodes (:func:`hidden_rows`); default the capacity.
@@ -160,15 +220,18 @@ def build(population: Genome, config: NEATConfig, substrate: Substrate, devices:
     ``devices`` > 1 (P a multiple of it): each of the first ``devices`` local devices builds its share of
     the genomes, and the table comes with its rows split over them (:func:`kx.sim.lanes.put_rows`), where
     the evaluator's lanes that play them run: it reads them there instead of copying the whole table onto
-    every device. Every genome's substrate is the same bit for bit either way."""
+    every device. Every genome's substrate is the same bit for bit either way.
+
+    ``reference``: the query as it was until 2026-12-05 (:func:`_reference_outputs`), the same bits for
+    more work; tests/test_substrate.py and ``scripts/substrate_build.py`` check and time the two."""
     substrate.check_cppn(config)
     if devices == 1:
-        return _build(population, config, substrate, rows)
+        return _build(population, config, substrate, rows, reference)
     if population.node_id.shape[0] % devices:
         raise ValueError(f"devices: {population.node_id.shape[0]} CPPNs do not split evenly over {devices} devices")
     from kx.sim import lanes
 
-    return jax.shard_map(functools.partial(_build, config=config, substrate=substrate, rows=rows),
+    return jax.shard_map(functools.partial(_build, config=config, substrate=substrate, rows=rows, reference=reference),
                          mesh=lanes.mesh(devices), in_specs=(lanes.TABLE_ROWS,), out_specs=lanes.TABLE_ROWS,
                          check_vma=False)(population)
 
@@ -182,7 +245,8 @@ def hidden_rows(population: Genome, config: NEATConfig) -> int:
     return network.hidden_rows(used, config.n_hidden)
 
 
-def _build(population: Genome, config: NEATConfig, substrate: Substrate, rows: int | None = None) -> dict:
+def _build(population: Genome, config: NEATConfig, substrate: Substrate, rows: int | None = None,
+           reference: bool = False) -> dict:
     n, r = substrate.n_cells, substrate.weight_range
     x = jnp.asarray(substrate.queries())
     nets = jax.vmap(lambda g: network.build(g, config))(population)
@@ -190,10 +254,15 @@ def _build(population: Genome, config: NEATConfig, substrate: Substrate, rows: i
 
     def one(args):
         net, nh = args
-        out = cppn_outputs(net, nh, x, config, rows)  # [3, N * N]
+        if reference:
+            out = _reference_outputs(net, nh, x, config, rows)  # [3, N * N]
+            w = jnp.where(out[EXPRESSION] > 0.0, r * jnp.clip(out[WEIGHT], -1.0, 1.0), 0.0).reshape(n, n)
+            return w, r * jnp.clip(jnp.diagonal(out[BIAS].reshape(n, n)), -1.0, 1.0)
+        # the bias of output node o is read at link o * N + o (its own coordinates): the diagonal
+        out, bias = cppn_outputs(net, nh, x, config, rows, last_at=np.arange(n) * (n + 1))
         w = jnp.where(out[EXPRESSION] > 0.0, r * jnp.clip(out[WEIGHT], -1.0, 1.0), 0.0).reshape(n, n)
-        b = r * jnp.clip(jnp.diagonal(out[BIAS].reshape(n, n)), -1.0, 1.0)
-        return w, b
+        return w, r * jnp.clip(bias, -1.0, 1.0)
 
     w, b = jax.lax.map(one, (nets, hidden))
     return {"w": w, "b": b}
+
