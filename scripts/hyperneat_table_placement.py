@@ -16,7 +16,6 @@ lives", gives the figures."""
 from __future__ import annotations
 
 import argparse
-import time
 
 from kx import runtime
 
@@ -29,6 +28,7 @@ def main() -> None:
     import jax
     import numpy as np
 
+    from kx.bench.common import in_turn
     from kx.bench.policies import load_fixture
     from kx.evolve import streams
     from kx.evolve import trainer as trm
@@ -71,12 +71,7 @@ def main() -> None:
         raise SystemExit("the two paths played different episodes")
     for f in paths.values():
         f()
-    times = {k: [] for k in paths}
-    for _ in range(args.rounds):
-        for k, f in paths.items():
-            t0 = time.perf_counter()
-            f()
-            times[k].append(time.perf_counter() - t0)
+    times = in_turn(paths, args.rounds)
     print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; {args.rounds} rounds in turn; "
           f"every episode the same on both paths")
     for k, v in times.items():

@@ -35,6 +35,7 @@ def main() -> None:
     import numpy as np
 
     from kx.bench import policies as bench_policies
+    from kx.bench.common import in_turn
     from kx.evolve import run as run_lib
     from kx.sim import env
     from kx.sim import evaluate as ev
@@ -77,12 +78,7 @@ def main() -> None:
                 raise SystemExit(f"{name}: the two ways played different episodes ({f})")
         if (ca.executed_steps, ca.widths) != (cb.executed_steps, cb.widths):
             raise SystemExit(f"{name}: the two ways stepped different lane-steps")
-        times = {True: [], False: []}
-        for _ in range(args.rounds):
-            for one_call in (True, False):
-                t0 = time.perf_counter()
-                play(one_call)
-                times[one_call].append(time.perf_counter() - t0)
+        times = in_turn({True: lambda: play(True), False: lambda: play(False)}, args.rounds)
         med = {k: float(np.median(v)) for k, v in times.items()}
         for k in totals:
             totals[k] += med[k]

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import time
 
 from kx import runtime
 
@@ -36,6 +35,7 @@ def main() -> None:
     import jax
     import numpy as np
 
+    from kx.bench.common import in_turn
     from kx.bench.policies import load_fixture
     from kx.evolve import streams
     from kx.evolve import trainer as trm
@@ -75,12 +75,7 @@ def main() -> None:
         raise SystemExit("the two generations played different episodes")
     for f in paths.values():
         f()
-    times = {k: [] for k in paths}
-    for _ in range(args.rounds):
-        for k, f in paths.items():
-            t0 = time.perf_counter()
-            f()
-            times[k].append(time.perf_counter() - t0)
+    times = in_turn(paths, args.rounds)
     med = {k: 1e3 * float(np.median(v)) for k, v in times.items()}
     hidden = np.asarray(jax.vmap(sb.gn.n_hidden)(population))
     print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; {args.rounds} rounds in turn; "
