@@ -265,4 +265,3 @@ def _build(population: Genome, config: NEATConfig, substrate: Substrate, rows: i
 
     w, b = jax.lax.map(one, (nets, hidden))
     return {"w": w, "b": b}
-
