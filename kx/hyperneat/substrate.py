@@ -129,7 +129,7 @@ def _dot_widths(rows: int) -> tuple[int, ...]:
 
 
 def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config: NEATConfig,
-                 rows: int | None = None, last_at: np.ndarray | None = None):
+                 rows: int | None = None, last_at: np.ndarray | None = None, narrow: bool = True):
     """Outputs ``[n_outputs, L]`` of one CPPN's network (not vmapped) for inputs ``x [n_inputs, L]``,
     computing only its first ``n_hidden`` hidden rows (the genome's hidden nodes, a prefix of its slots).
 
@@ -144,7 +144,7 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
     ``k >= i`` of them, ``k`` the narrowest of :func:`_dot_widths` (rows ``i`` and later are still 0).
     XLA CPU computes each of these ``jnp.dot``s as one fused multiply-add after another from +0, row by
     row, so the rows left out changed nothing, not even a zero's sign (tests/test_substrate.py checks it
-    against the sum over every row).
+    against the sum over every row: ``narrow=False``, the query as it was until 2026-12-05).
 
     ``last_at`` (indices of ``x``'s columns): the last output only at those columns; returns ``(first
     outputs [n_outputs - 1, L], last output [len(last_at)])`` (the substrate's biases are read at 400 of
@@ -174,7 +174,7 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
 
         carry = (jnp.zeros((rows, x.shape[1]), jnp.float32), out, last)
         first = 0  # nodes first..width read `width` rows (hidden node i needs i of them)
-        for width in _dot_widths(rows):
+        for width in (_dot_widths(rows) if narrow else (rows,)):
             end = rows if width == rows else width + 1
             carry = jax.lax.fori_loop(first, jnp.minimum(n_hidden, end), functools.partial(body, width), carry)
             first = end
@@ -183,31 +183,6 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
     if last_at is None:
         return outs
     return outs, _switch(net.act[h + split], last, opts)
-
-
-def _reference_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config: NEATConfig,
-                       rows: int | None = None) -> jax.Array:
-    """:func:`cppn_outputs` as it was until 2026-12-05, kept as the reference it is checked against bit for
-    bit (``build(..., reference=True)``): each hidden node's sum over all ``rows`` hidden rows, and every
-    output on every link (``[n_outputs, L]``)."""
-    h, o, n_in = config.n_hidden, config.n_outputs, config.n_inputs
-    rows = h if rows is None else rows
-    opts = config.activation_options
-    hp = jax.lax.Precision.HIGHEST
-
-    def from_inputs(rows):
-        return jnp.dot(rows[:, :n_in], x, precision=hp) + rows[:, n_in:]
-
-    def body(i, carry):
-        hid, out = carry
-        row = jax.lax.dynamic_slice_in_dim(net.w_in, i, 1)
-        hi = _switch(net.act[i], from_inputs(row)[0] + jnp.dot(net.w_hid[i, :rows], hid, precision=hp), opts)
-        return hid.at[i].set(hi), out + net.w_hid[h:, i][:, None] * hi[None]
-
-    out = from_inputs(net.w_in[h:])
-    if h:
-        _, out = jax.lax.fori_loop(0, n_hidden, body, (jnp.zeros((rows, x.shape[1]), jnp.float32), out))
-    return jnp.stack([_switch(net.act[h + k], out[k], opts) for k in range(o)])
 
 
 @functools.partial(jax.jit, static_argnames=("config", "substrate", "devices", "rows", "reference"))
@@ -222,8 +197,9 @@ def build(population: Genome, config: NEATConfig, substrate: Substrate, devices:
     the evaluator's lanes that play them run: it reads them there instead of copying the whole table onto
     every device. Every genome's substrate is the same bit for bit either way.
 
-    ``reference``: the query as it was until 2026-12-05 (:func:`_reference_outputs`), the same bits for
-    more work; tests/test_substrate.py and ``scripts/substrate_build.py`` check and time the two."""
+    ``reference``: the query as it was until 2026-12-05 (every hidden row in each sum, every output on
+    every link: :func:`cppn_outputs` with ``narrow=False`` and no ``last_at``), the same bits for more work;
+    tests/test_substrate.py and ``scripts/substrate_build.py`` check and time the two."""
     substrate.check_cppn(config)
     if devices == 1:
         return _build(population, config, substrate, rows, reference)
@@ -255,11 +231,10 @@ def _build(population: Genome, config: NEATConfig, substrate: Substrate, rows: i
     def one(args):
         net, nh = args
         if reference:
-            out = _reference_outputs(net, nh, x, config, rows)  # [3, N * N]
-            w = jnp.where(out[EXPRESSION] > 0.0, r * jnp.clip(out[WEIGHT], -1.0, 1.0), 0.0).reshape(n, n)
-            return w, r * jnp.clip(jnp.diagonal(out[BIAS].reshape(n, n)), -1.0, 1.0)
-        # the bias of output node o is read at link o * N + o (its own coordinates): the diagonal
-        out, bias = cppn_outputs(net, nh, x, config, rows, last_at=np.arange(n) * (n + 1))
+            out = cppn_outputs(net, nh, x, config, rows, narrow=False)  # [3, N * N]
+            bias = jnp.diagonal(out[BIAS].reshape(n, n))
+        else:  # the bias of output node o is read at link o * N + o (its own coordinates): the diagonal
+            out, bias = cppn_outputs(net, nh, x, config, rows, last_at=np.arange(n) * (n + 1))
         w = jnp.where(out[EXPRESSION] > 0.0, r * jnp.clip(out[WEIGHT], -1.0, 1.0), 0.0).reshape(n, n)
         return w, r * jnp.clip(bias, -1.0, 1.0)
 
