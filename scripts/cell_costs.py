@@ -19,6 +19,11 @@ task's setups (s per generation, each run's share of its group's time). Where FO
 directories (a live protocol folder; committed ones hold only results.csv), that ratio is split in two:
 the live steps a generation plays (how long the populations' episodes last, which is what they learned,
 from each run's metrics.csv) times the seconds per live step (what the method costs per step of play).
+There it also fits, per batched group, the group's seconds per generation (generations 1 on: generation 0
+compiles) against the live steps its runs played, by least squares: a part each generation pays however long
+its episodes last (METHOD's substrate build, ``tell``, validation, the host) and a cost per live step; and
+prints what METHOD's generation would cost against BASE's if its live steps cost what BASE's do in that cell
+(its own fixed part and live steps kept): the ratio left with a policy as cheap as BASE's.
 """
 
 from __future__ import annotations
@@ -98,6 +103,7 @@ def main(argv=None) -> None:
     if args.versus:
         _versus(cells, *args.versus.split(":"))
         _versus_live_steps(args.folder, cells, *args.versus.split(":"))
+        _versus_fit(args.folder, cells, *args.versus.split(":"))
 
 
 def _compared(cells, method: str, base: str) -> list[tuple[str, str, list, list]]:
@@ -131,12 +137,102 @@ def _versus(cells, method: str, base: str) -> None:
 def _live_steps(folder: pathlib.Path, row: dict) -> int | None:
     """The live steps of a row's run over all its generations (its run directory's metrics.csv), or None
     where the folder does not hold the run directory (a committed folder holds only results.csv)."""
+    metrics = _metrics(folder, row)
+    return None if metrics is None else sum(int(r["live_steps"]) for r in metrics)
+
+
+def _metrics(folder: pathlib.Path, row: dict) -> list[dict] | None:
     spec = t3.RunSpec(row["method"], row["setup"], row["phase"], row["target"], int(row["run"]))
     path = t3.run_dir(folder, spec) / "metrics.csv"
     if not path.is_file():
         return None
     with open(path, newline="") as f:
-        return sum(int(r["live_steps"]) for r in csv.DictReader(f))
+        return list(csv.DictReader(f))
+
+
+def _groups(metrics: list[list[dict]]) -> list[list[list[dict]]]:
+    """Runs grouped by the batched group they trained in: the runs of a group carry the same
+    ``generation_seconds`` in every generation (one timer's readings, the group's), runs of different groups
+    do not (two timers never read the same float for every generation)."""
+    out = collections.defaultdict(list)
+    for m in metrics:
+        out[tuple(r["generation_seconds"] for r in m)].append(m)
+    return list(out.values())
+
+
+class _NoFit(Exception):
+    pass
+
+
+def _fit(group: list[list[dict]]) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """``(fixed seconds, seconds per live step, live steps, seconds)`` of a group's generations 1 on:
+    least squares of the group's seconds per generation against the live steps its runs played."""
+    gens = min(len(m) for m in group)
+    live = np.array([sum(int(m[g]["live_steps"]) for m in group) for g in range(1, gens)], float)
+    sec = np.array([float(group[0][g]["generation_seconds"]) for g in range(1, gens)])
+    if len(live) < 2 or np.ptp(live) == 0:
+        raise _NoFit("a fit needs two generations after the first with different live steps")
+    (fixed, per_step), *_ = np.linalg.lstsq(np.stack([np.ones_like(live), live], 1), sec, rcond=None)
+    return float(fixed), float(per_step), live, sec
+
+
+def _totals(runs: int, fit) -> np.ndarray:
+    """A fitted group's seconds, fixed seconds, seconds of its live steps (at its fitted cost per live step),
+    live steps and run-generations over its generations 1 on; a sixth slot left 0 for the caller."""
+    fixed, per_step, live, sec = fit
+    return np.array([sec.sum(), fixed * len(live), per_step * live.sum(), live.sum(), runs * len(live), 0.0])
+
+
+GOAL = 1.5  # issue 30: a HyperNEAT 4v3 target generation at most 1.5 times a NEAT one
+
+
+def _versus_fit(folder: pathlib.Path, cells, method: str, base: str) -> None:
+    """Per cell and per group, METHOD's and BASE's fixed part and cost per live step (:func:`_fit`), then
+    METHOD's seconds per generation against BASE's (generations 1 on) as measured and as it would be with
+    BASE's cost per live step in that cell: each of METHOD's groups keeps its fixed part and its live steps.
+    Then, pooled over each task's cells, both methods' fixed part and cost per live step, and the cost per
+    live step METHOD would need for :data:`GOAL`, with its own fixed part and with BASE's. Prints nothing
+    when some run directory of a compared cell is missing; says why when a group cannot be fitted."""
+    compared = [c for c in _compared(cells, method, base) if c[1] != "every setup both ran"]
+    metrics = {t3.row_key(r): _metrics(folder, r) for _, _, rs, other in compared for r in rs + other}
+    if not compared or any(m is None for m in metrics.values()):
+        return
+    try:
+        fitted = [(target, setup, {m: [(len(g), _fit(g)) for g in _groups([metrics[t3.row_key(r)] for r in runs])]
+                                   for m, runs in ((method, rs), (base, other))})
+                  for target, setup, rs, other in compared]
+    except _NoFit as e:
+        print(f"(no fit: {e})")
+        return
+    print(f"\n| target | setup | method | group: runs, fixed ms a run-generation, ns per live step | s per "
+          f"run-generation | {method} / {base} | with {base}'s ns per live step |")
+    print("|---|---|---|---|---|---|---|")
+    # per (target, method): _totals, the sixth slot METHOD's seconds priced at BASE's cost per live step
+    pooled = collections.defaultdict(lambda: np.zeros(6))
+    for target, setup, fits in fitted:
+        sums = {m: sum((_totals(n, f) for n, f in groups), np.zeros(6)) for m, groups in fits.items()}
+        base_per_step = sums[base][2] / sums[base][3]
+        sums[method][5] = sums[method][1] + base_per_step * sums[method][3]
+        sec = {m: v[0] / v[4] for m, v in sums.items()}
+        for m, groups in fits.items():
+            desc = "; ".join(f"{n}, {f[0] / n * 1e3:.0f}, {f[1] * 1e9:.0f}" for n, f in groups)
+            tail = (f"{sec[method] / sec[base]:.2f} | {sums[method][5] / sums[method][4] / sec[base]:.2f} |"
+                    if m == method else "| |")
+            print(f"| {target} | {setup} | {m} | {desc} | {sec[m]:.3f} | {tail}")
+            pooled[target, m] += sums[m]
+    for target in sorted({t for t, _ in pooled}):
+        p, b = pooled[target, method], pooled[target, base]
+        sec, b_sec = p[0] / p[4], b[0] / b[4]
+        print(f"| {target} | every setup both ran | {method} | | {sec:.3f} | {sec / b_sec:.2f} | "
+              f"{p[5] / p[4] / b_sec:.2f} |")
+    for target in sorted({t for t, _ in pooled}):
+        p, b = pooled[target, method], pooled[target, base]
+        b_sec = b[0] / b[4]
+        desc = {m: f"{m} {v[1] / v[4] * 1e3:.0f} ms a run-generation + {v[2] / v[3] * 1e9:.0f} ns per live step x "
+                   f"{v[3] / v[4] / 1e6:.2f}M live steps" for m, v in ((method, p), (base, b))}
+        need = [(GOAL * b_sec - fixed / p[4]) / (p[3] / p[4]) * 1e9 for fixed in (p[1], b[1] / b[4] * p[4])]
+        print(f"{target}, pooled: {desc[method]}; {desc[base]}. For {method} / {base} = {GOAL}: {method}'s ns per "
+              f"live step at most {need[0]:.0f} with its fixed part, {need[1]:.0f} with {base}'s.")
 
 
 def _versus_live_steps(folder: pathlib.Path, cells, method: str, base: str) -> None:
