@@ -28,7 +28,9 @@ whole step (whose decision is about 5 ns a lane) and to always-hold's (a decisio
 episodes are the shortest, so the evaluator's fixed costs weigh most on it). ``hyperneat`` is what
 the run loop plays: :func:`kx.hyperneat.bev.bev_policy` with ``skip_idle`` (no decision where nobody holds
 the ball or the episode is over); ``hyperneat_every_state`` decides on every state as the dense reference
-does (the same episodes bit for bit, and so the same mean fitness).
+does (the same episodes bit for bit, and so the same mean fitness). HyperNEAT's sums run on the native kernel
+(:mod:`kx.native`) where it can be built, and the benchmark says so; ``hyperneat_xla`` is then the same
+policy on the compiled XLA code, measured in the same run (the same episodes).
 
 **Samples.** The policies are sampled in turn (one sample of each, ``--repeats`` times, as ``kx.bench
 sim`` does), each sample repeating evaluations for at least ``--sample-seconds``; each figure is the median
@@ -216,6 +218,12 @@ def run(args) -> None:
     enc = fixtures["hyperneat"][0].encoding
     policies["hyperneat_every_state"] = (bev.bev_policy(exp.sim, enc.image, enc.decision, enc.substrate_activation),
                                          policies["hyperneat"][1])
+    # what the run loop plays, on the compiled XLA code instead of the native kernel (the same episodes)
+    why = bev.native_runs(enc.image)
+    print(f"hyperneat's sums: {'the native kernel (kx.native)' if not why else f'the XLA code ({why})'}", flush=True)
+    if not why:
+        policies["hyperneat_xla"] = (bev.bev_policy(exp.sim, enc.image, enc.decision, enc.substrate_activation,
+                                                    skip_idle=True, impl="xla"), policies["hyperneat"][1])
 
     works, first = {}, {}
     for name, (policy, params) in policies.items():
@@ -258,6 +266,9 @@ def run(args) -> None:
         named[m] = ((lambda pol: lambda p, s: pol.apply(p, s, None))(pol), _lane_params(tr, population, n_trials))
     every = policies["hyperneat_every_state"][0]
     named["hyperneat_every_state"] = (lambda p, s: every.apply(p, s, None), named["hyperneat"][1])
+    if "hyperneat_xla" in policies:
+        on_xla = policies["hyperneat_xla"][0]
+        named["hyperneat_xla"] = (lambda p, s: on_xla.apply(p, s, None), named["hyperneat"][1])
     alone = _decision_alone(named, lanes)
     print("each decision alone on one core (ns per lane, mid-episode states): "
           + ", ".join(f"{k} {v:.0f}" for k, v in alone.items()))

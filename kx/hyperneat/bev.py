@@ -45,7 +45,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from kx import native
 from kx.neat.activations import ACTIVATIONS, INCREASING
 from kx.sim import observe
 from kx.sim.ops import col, fenced, pick
@@ -54,6 +56,9 @@ from kx.sim.types import KeepAwayConfig, State
 
 #: the decisions the policy makes from its output cells (the images: kx.sim.observe.BEV_IMAGES)
 DECISIONS = ("cells", "literal")
+#: how :func:`sparse_outputs` computes the sums: ``"auto"`` the native kernel where it runs
+#: (:func:`native_runs`), else the compiled XLA code; ``"xla"`` and ``"native"`` force one (the same bits)
+IMPLS = ("auto", "xla", "native")
 # floor(i * r + ROUND_OFFSET) with r = fl(d / n) is exactly floor((2 i d + n) / (2 n)) (the digital
 # line's "halves rounded up") for |i|, |d|, n < 64: the computed i * r is within 1e-5 of i * d / n, an
 # exact half lands 1e-3 above its integer, and any other value keeps at least 1 / (2 n) > 1e-3 + 1e-5
@@ -61,7 +66,9 @@ DECISIONS = ("cells", "literal")
 ROUND_OFFSET = 0.501
 
 
-def _check(config: KeepAwayConfig, image: str, decision: str, activation: str) -> None:
+def _check(config: KeepAwayConfig, image: str, decision: str, activation: str, impl: str = "auto") -> None:
+    if impl not in IMPLS:
+        raise ValueError(f"impl: allowed {IMPLS}, got {impl!r}")
     if image not in observe.BEV_IMAGES:
         raise ValueError(f"image: allowed {observe.BEV_IMAGES}, got {image!r}")
     if decision not in DECISIONS:
@@ -258,9 +265,31 @@ def _agent_sums(w_flat, b_flat, n: int, index, rows, a_cell, a_val):
     return _chain(w_flat, base, bias, a_cell, a_val), base
 
 
+def native_runs(image: str) -> str:
+    """Why :func:`sparse_outputs` cannot run the native kernel (``kx.native``'s ``kx_bev_sums``) for this
+    image in this process, or "" where it can: it computes the authors' image (the default; the paper image's
+    clip stays with the XLA code) on the CPU backend, where the library could be built."""
+    if image != "authors":
+        return f"image {image!r}: the kernel computes the authors' image"
+    return native.unavailable()
+
+
+@functools.cache
+def chain_is_fused() -> bool:
+    """Whether XLA, under this process's flags, compiles :func:`_chain`'s ``total + value * weight`` into one
+    fused multiply-add (one rounding: its default flags) or a product and a sum (two: backend optimisation
+    level 0, as the test suite compiles). Probed once on values whose two roundings differ: ``-1 + (1 +
+    2^-12)^2`` is ``2^-11 + 2^-24`` fused and ``2^-11`` with the product rounded first."""
+    v = np.full((1,), 1 + 2.0**-12, np.float32)
+    zero = np.zeros((1, 1), np.int32)
+    with jax.ensure_compile_time_eval():  # run now, also when first asked while a policy is being traced
+        out = jax.jit(_chain)(v, zero, np.full((1, 1), -1.0, np.float32), zero, v[:, None])
+        return bool(np.asarray(out)[0, 0] != 2.0**-11)
+
+
 def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State, config: KeepAwayConfig,
                    image: str = "paper", activation: str | None = "bipolar_sigmoid",
-                   busy: jax.Array | None = None) -> jax.Array:
+                   busy: jax.Array | None = None, impl: str = "auto") -> jax.Array:
     """``act(b[o] + sum_i image[i] * w[o, i])`` of each lane's genome ``index [*B]`` at output cells
     ``rows [R, *B]``, from the sparse image: ``[R, *B]`` float32 (``activation=None``: the sums,
     before any activation). ``busy [*B]`` (optional): where false, the lane's image is left out and its
@@ -274,8 +303,19 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
     the batch's longest list (rounded up to a chunk), not for every path's ``W - 2`` slots (in trained
     4v3 play 34 steps on average and about 90 at most in a batch, of 108 slots). Where the paper image's
     clip changes path cells (:func:`_needs_path_clip`: 5v3 and 6v4), every entry of
-    :func:`sparse_image` is taken."""
-    _check(config, image, "cells", activation or "identity")
+    :func:`sparse_image` is taken.
+
+    ``impl`` (:data:`IMPLS`): ``"auto"`` runs the native kernel (``kx.native``, :func:`native_runs`) where
+    it can, one lane at a time over its own list, with multiply-adds rounded as the XLA code's are under the
+    process's flags (:func:`chain_is_fused`): the same sums bit for bit, a lane that is not busy included
+    (its agents add ``0 * w``). ``"native"`` refuses to run without it."""
+    _check(config, image, "cells", activation or "identity", impl)
+    if impl != "xla":
+        why = native_runs(image)
+        if not why:
+            return _act(activation, native.bev_sums(table, index, rows, state, config, busy, chain_is_fused()))
+        if impl == "native":
+            raise ValueError(f"impl: 'native' is not available here ({why}); allowed {IMPLS}")
     n = config.field_size**2
     w_flat = table["w"].reshape(-1)
     if w_flat.shape[0] >= 2**31:
@@ -369,7 +409,7 @@ def _decide_cells(vals: jax.Array, h: jax.Array, config: KeepAwayConfig) -> jax.
 
 @functools.lru_cache(maxsize=None)
 def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "cells",
-               activation: str = "bipolar_sigmoid", skip_idle: bool = False) -> Policy:
+               activation: str = "bipolar_sigmoid", skip_idle: bool = False, impl: str = "auto") -> Policy:
     """The HyperNEAT policy on the Bird's Eye View, reading a shared table of substrates.
 
     Args:
@@ -396,12 +436,14 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         population of ``kx.bench policies`` a quarter less per live step (about a third of live steps
         have the ball in flight, and a quarter of the steps the evaluator executes are of finished
         episodes).
+      impl: how the sums are computed (:func:`sparse_outputs`, :data:`IMPLS`): the same decisions bit for
+        bit whichever runs.
 
     ``apply(Shared({"w": [G, N, N], "b": [G, N]}, index [*B]), state, key)`` returns a keeper index per
     lane (the holder's own index holds), also when nobody holds the ball (then keeper 0 stands in for the
     holder, as in :mod:`kx.sim.observe`).
     """
-    _check(config, image, decision, activation)
+    _check(config, image, decision, activation, impl)
     if not isinstance(skip_idle, bool):
         raise ValueError(f"skip_idle: allowed true or false, got {skip_idle!r}")
     n = config.field_size**2
@@ -412,15 +454,16 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         busy = (state.holder >= 0) & ~state.done if skip_idle else None
         if decision == "cells":
             kc = state.keeper_x + config.field_size * state.keeper_y  # [K, *B]
-            vals = sparse_outputs(params.table, params.index, kc, state, config, image, ranked, busy)
+            vals = sparse_outputs(params.table, params.index, kc, state, config, image, ranked, busy, impl)
             action = _decide_cells(vals, h, config)
         else:
             rows = jnp.broadcast_to(col(n, h.ndim), (n,) + h.shape)
-            outs = sparse_outputs(params.table, params.index, rows, state, config, image, ranked, busy)
+            outs = sparse_outputs(params.table, params.index, rows, state, config, image, ranked, busy, impl)
             action = observe.decode_bev(outs, state, config, literal=True)
         return action if busy is None else jnp.where(busy, action, h)
 
-    name = f"bev-{image}-{decision}-{activation}" + ("-skip-idle" if skip_idle else "")
+    name = f"bev-{image}-{decision}-{activation}" + ("-skip-idle" if skip_idle else "") + (
+        "" if impl == "auto" else f"-{impl}")
     return Policy(name, apply, shared=True)
 
 

@@ -1,0 +1,132 @@
+"""kx's native CPU kernels: XLA FFI custom calls built from C++ source with the machine's compiler.
+
+``kx_bev_sums`` (``bev_sums.cc``): the sums of HyperNEAT's Bird's Eye View decision
+(:func:`kx.hyperneat.bev.sparse_outputs`, the authors' image) one lane at a time, each lane reading only its
+own image's entries. The compiled XLA code runs every lane of a batch in lockstep up to the batch's longest
+list of path steps and reads each weight with a scalar gather inside a vectorised loop; the kernel gives the
+same sums bit for bit (tests/test_native.py) at a fraction of the cost (docs/hyperneat.md, "A native
+decision").
+
+The library is built on first use, or by ``python -m kx.native`` (which ``make`` runs at set-up), into
+``kx/native/_build/``, named by a hash of its source, the compiler and its flags, jaxlib's version and the
+CPU's model and flags, so that a change of any of them builds it again; the build goes to a temporary file
+that is then renamed, so that processes starting together never load a half-written library. It compiles
+with ``-march=native`` (the machine's fused multiply-add) and ``-ffp-contract=off`` (no other operation
+fused). Where it cannot be built (no compiler: ``CXX``, default ``g++``), where ``KX_NATIVE=0``, or on
+another backend than the CPU, kx runs the compiled XLA code, which gives the same results more slowly.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import pathlib
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+SOURCE = pathlib.Path(__file__).with_name("bev_sums.cc")
+BUILD_DIR = pathlib.Path(__file__).with_name("_build")
+FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes",
+         "-Wno-return-type")
+TARGET = "kx_bev_sums"
+
+
+def _cpu_fingerprint() -> str:
+    """The CPU's model and feature flags (what ``-march=native`` compiles for)."""
+    try:
+        lines = pathlib.Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return platform.processor() or platform.machine()
+    keep = [ln for ln in lines if ln.startswith(("model name", "flags", "Features"))]
+    return "\n".join(sorted(set(keep))) or platform.machine()
+
+
+def library_path() -> pathlib.Path:
+    """Where this source, compiler, jaxlib and CPU's library is (or will be) built."""
+    import jaxlib
+
+    cxx = os.environ.get("CXX", "g++")
+    key = hashlib.sha256("\0".join([SOURCE.read_text(), cxx, *FLAGS, jaxlib.__version__, _cpu_fingerprint()])
+                         .encode()).hexdigest()[:16]
+    return BUILD_DIR / f"libkx_native-{key}.so"
+
+
+def build() -> pathlib.Path:
+    """Builds the library if it is not there yet and returns its path; raises RuntimeError with the
+    compiler's message where it cannot be built."""
+    path = library_path()
+    if path.is_file():
+        return path
+    cxx = os.environ.get("CXX", "g++")
+    if shutil.which(cxx) is None:
+        raise RuntimeError(f"no C++ compiler: {cxx!r} is not on PATH (set CXX to one)")
+    BUILD_DIR.mkdir(exist_ok=True)
+    fd, tmp = tempfile.mkstemp(suffix=".so", dir=BUILD_DIR)
+    os.close(fd)
+    try:
+        cmd = [cxx, *FLAGS, "-I", jax.ffi.include_dir(), str(SOURCE), "-o", tmp]
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()}")
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+@functools.cache
+def _library() -> tuple[ctypes.CDLL | None, str]:
+    """The loaded library with its FFI target registered, or None and why not."""
+    if os.environ.get("KX_NATIVE", "1") == "0":
+        return None, "KX_NATIVE=0"
+    try:
+        lib = ctypes.cdll.LoadLibrary(str(build()))
+    except (RuntimeError, OSError) as e:
+        return None, str(e)
+    jax.ffi.register_ffi_target(TARGET, jax.ffi.pycapsule(lib.KxBevSums), platform="cpu")
+    return lib, ""
+
+
+def unavailable() -> str:
+    """Why the native kernels are not used in this process, or "" where they are."""
+    if jax.default_backend() != "cpu":
+        return f"the backend is {jax.default_backend()}, the kernels are the CPU's"
+    return _library()[1]
+
+
+def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy: jax.Array | None,
+             fused: bool) -> jax.Array:
+    """``kx_bev_sums``: the authors' image's sums ``[R, *B]`` at output rows ``rows [R, *B]`` of each lane's
+    genome ``index [*B]`` (:func:`kx.hyperneat.bev.sparse_outputs` with ``activation=None``); ``fused``:
+    one rounding per multiply-add or two, as XLA's compiled chain does under the process's flags."""
+    why = unavailable()
+    if why:
+        raise RuntimeError(f"kx.native: not available ({why})")
+    if busy is None:
+        busy = jnp.ones(index.shape, bool)
+    i32 = functools.partial(jnp.asarray, dtype=jnp.int32)
+    call = jax.ffi.ffi_call(TARGET, jax.ShapeDtypeStruct(rows.shape, jnp.float32), vmap_method="sequential")
+    return call(table["w"], table["b"], i32(index), i32(rows), i32(state.keeper_x), i32(state.keeper_y),
+                i32(state.taker_x), i32(state.taker_y), i32(state.holder), jnp.asarray(busy, bool),
+                width=np.int64(config.field_size), fused=bool(fused))
+
+
+def main() -> None:
+    try:
+        print(build())
+    except RuntimeError as e:
+        print(f"kx.native: not built ({e}); kx will run its compiled XLA code instead", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

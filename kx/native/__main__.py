@@ -1,0 +1,3 @@
+from kx.native import main
+
+main()
