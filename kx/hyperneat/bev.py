@@ -36,7 +36,11 @@ into an array, one entry of every lane at a time; measured alone, those reads co
 the whole 96 MB table as from one genome's 640 KB, and HyperNEAT's whole step cost 11-13 times the
 heuristic's. Reading each lane's weights of a row one after another inside the chains of multiply-adds,
 and leaving the padding out, halved it (5.6-6.9 times, the machine's load moving the figure); the sums
-are the same bit for bit. See docs/hyperneat.md, "What it costs".
+are the same bit for bit. Since 2026-12-05 the authors' image's sums run by default on a native kernel
+(:mod:`kx.native`, ``impl``): each lane computes its own image and reads only its own entries, where the
+compiled code runs a batch's lanes in lockstep up to its longest list; the same sums bit for bit, with
+the multiply-adds rounded as this code's are under the process's flags (:func:`chain_is_fused`). See
+docs/hyperneat.md, "What it costs" and "A native decision".
 """
 
 from __future__ import annotations
