@@ -44,82 +44,15 @@ struct Lanes {
 
 inline int32_t Sign(int32_t v) { return (v > 0) - (v < 0); }
 
-// The lane's image entries: its agents, then each path's steps 1 .. n - 1; an idle lane's agents at the
-// holder's cell with value 0 and no path steps.
-void ImageOf(const Lanes& s, int64_t l, Image& out) {
+// Calls add(value, cell) for each entry of lane l's image in order: its K keepers, its T takers, then each
+// path (the holder's teammates in keeper order, then the takers) step by step, steps 1 .. n - 1. An idle lane:
+// its agents' entries at the holder's cell with value 0, no path steps.
+template <typename Add>
+inline void ForEachEntry(const Lanes& s, int64_t l, Add&& add) {
   const int64_t n = s.n;
   const int32_t h = std::max(s.holder[l], 0);
   const int32_t sx = s.kx[h * n + l], sy = s.ky[h * n + l], w = s.width;
   const int32_t hc = sx + w * sy;
-  int32_t e = 0;
-  if (!s.busy[l]) {
-    for (int32_t a = 0; a < s.k + s.t; ++a, ++e) {
-      out.cell[e] = hc;
-      out.value[e] = 0.0f;
-    }
-    out.size = e;
-    return;
-  }
-  for (int32_t i = 0; i < s.k; ++i, ++e) {
-    out.cell[e] = s.kx[i * n + l] + w * s.ky[i * n + l];
-    out.value[e] = i == h ? kHolder : kTeammate;
-  }
-  for (int32_t j = 0; j < s.t; ++j, ++e) {
-    out.cell[e] = s.tx[j * n + l] + w * s.ty[j * n + l];
-    out.value[e] = kTaker;
-  }
-  for (int32_t p = 0; p < s.k - 1 + s.t; ++p) {
-    int32_t x, y;
-    float sg;
-    if (p < s.k - 1) {
-      const int32_t mate = p + (p >= h ? 1 : 0);
-      x = s.kx[mate * n + l], y = s.ky[mate * n + l], sg = 1.0f;
-    } else {
-      x = s.tx[(p - (s.k - 1)) * n + l], y = s.ty[(p - (s.k - 1)) * n + l], sg = -1.0f;
-    }
-    const int32_t dx = x - sx, dy = y - sy, adx = std::abs(dx), ady = std::abs(dy);
-    const int32_t steps = std::max(adx, ady);
-    const bool x_major = adx >= ady;
-    const int32_t major = x_major ? Sign(dx) : w * Sign(dy), minor = x_major ? w : 1;
-    const float slope = static_cast<float>(x_major ? dy : dx) / static_cast<float>(std::max(steps, 1));
-    const float value = sg / (1.0f + std::sqrt(static_cast<float>(dx * dx + dy * dy)));
-    for (int32_t i = 1; i < steps; ++i, ++e) {
-      out.cell[e] = hc + i * major + minor * static_cast<int32_t>(std::floor(static_cast<float>(i) * slope + kRoundOffset));
-      out.value[e] = value;
-    }
-  }
-  out.size = e;
-}
-
-template <bool kFused>
-inline float MultiplyAdd(float v, float w, float acc) {
-  if constexpr (kFused) {
-    return std::fma(v, w, acc);
-  } else {
-    return acc + v * w;  // two roundings: kx.native compiles with -ffp-contract=off, so no fma is formed
-  }
-}
-
-// R output rows of one lane, their chains interleaved (R independent multiply-add chains per entry).
-template <bool kFused, int R>
-inline void Chains(const float* const* row, float* acc, const Image& img) {
-  for (int32_t e = 0; e < img.size; ++e) {
-    const float v = img.value[e];
-    const int32_t c = img.cell[e];
-    for (int r = 0; r < R; ++r) acc[r] = MultiplyAdd<kFused>(v, row[r][c], acc[r]);
-  }
-}
-
-// One lane's sums, each entry computed and applied at once (the image never stored): R independent chains.
-template <bool kFused, int R>
-inline void LaneSums(const Lanes& s, int64_t l, const float* const* row, float* acc) {
-  const int64_t n = s.n;
-  const int32_t h = std::max(s.holder[l], 0);
-  const int32_t sx = s.kx[h * n + l], sy = s.ky[h * n + l], w = s.width;
-  const int32_t hc = sx + w * sy;
-  auto add = [&](float v, int32_t c) {
-    for (int r = 0; r < R; ++r) acc[r] = MultiplyAdd<kFused>(v, row[r][c], acc[r]);
-  };
   if (!s.busy[l]) {
     for (int32_t a = 0; a < s.k + s.t; ++a) add(0.0f, hc);
     return;
@@ -144,6 +77,44 @@ inline void LaneSums(const Lanes& s, int64_t l, const float* const* row, float* 
     for (int32_t i = 1; i < steps; ++i)
       add(value, hc + i * major + minor * static_cast<int32_t>(std::floor(static_cast<float>(i) * slope + kRoundOffset)));
   }
+}
+
+// The lane's image stored as a list (for many rows: computed once, read by each block of rows).
+void ImageOf(const Lanes& s, int64_t l, Image& out) {
+  int32_t e = 0;
+  ForEachEntry(s, l, [&](float v, int32_t c) {
+    out.cell[e] = c;
+    out.value[e] = v;
+    ++e;
+  });
+  out.size = e;
+}
+
+template <bool kFused>
+inline float MultiplyAdd(float v, float w, float acc) {
+  if constexpr (kFused) {
+    return std::fma(v, w, acc);
+  } else {
+    return acc + v * w;  // two roundings: kx.native compiles with -ffp-contract=off, so no fma is formed
+  }
+}
+
+// R output rows of one lane, their chains interleaved (R independent multiply-add chains per entry).
+template <bool kFused, int R>
+inline void Chains(const float* const* row, float* acc, const Image& img) {
+  for (int32_t e = 0; e < img.size; ++e) {
+    const float v = img.value[e];
+    const int32_t c = img.cell[e];
+    for (int r = 0; r < R; ++r) acc[r] = MultiplyAdd<kFused>(v, row[r][c], acc[r]);
+  }
+}
+
+// One lane's sums, each entry applied to the R rows' chains as it is computed (the image never stored).
+template <bool kFused, int R>
+inline void LaneSums(const Lanes& s, int64_t l, const float* const* row, float* acc) {
+  ForEachEntry(s, l, [&](float v, int32_t c) {
+    for (int r = 0; r < R; ++r) acc[r] = MultiplyAdd<kFused>(v, row[r][c], acc[r]);
+  });
 }
 
 template <bool kFused>
