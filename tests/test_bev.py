@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import TASKS, make_state
+from substrates import random_table
 
 from kx.hyperneat import bev
 from kx.neat.activations import ACTIVATIONS
@@ -209,14 +210,6 @@ def test_no_holder_gives_a_valid_index():
 
 
 # ------------------------------------------------------------------------------ sparse = dense
-
-
-@functools.partial(jax.jit, static_argnums=(1, 2))
-def random_table(key, g, n):
-    kw, km, kb = jax.random.split(key, 3)
-    w = jax.random.uniform(kw, (g, n, n), jnp.float32, -5.0, 5.0)
-    w = jnp.where(jax.random.bernoulli(km, 0.5, (g, n, n)), w, 0.0)
-    return {"w": w, "b": jax.random.uniform(kb, (g, n), jnp.float32, -5.0, 5.0)}
 
 
 @functools.partial(jax.jit, static_argnums=(1, 2))

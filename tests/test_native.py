@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from substrates import random_table
 
 from kx import native
 from kx.hyperneat import bev
@@ -23,12 +24,8 @@ W = 20
 pytestmark = pytest.mark.skipif(bool(native.unavailable()), reason=f"kx.native: {native.unavailable()}")
 
 
-@functools.partial(jax.jit, static_argnums=(1,))
 def _table(key, g):
-    kw, km, kb = jax.random.split(key, 3)
-    w = jax.random.uniform(kw, (g, W * W, W * W), jnp.float32, -5.0, 5.0)
-    w = jnp.where(jax.random.bernoulli(km, 0.7, w.shape), w, 0.0)
-    return {"w": w, "b": jax.random.uniform(kb, (g, W * W), jnp.float32, -5.0, 5.0)}
+    return random_table(key, g, W * W)
 
 
 @functools.partial(jax.jit, static_argnames=("config", "impl", "n_rows"))

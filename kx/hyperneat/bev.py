@@ -317,7 +317,8 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
     if impl != "xla":
         why = native_runs(image)
         if not why:
-            return _act(activation, native.bev_sums(table, index, rows, state, config, busy, chain_is_fused()))
+            return _act(activation, native.bev_sums(table, index, rows, state, config, busy, chain_is_fused(),
+                                                        ROUND_OFFSET))
         if impl == "native":
             raise ValueError(f"impl: 'native' is not available here ({why}); allowed {IMPLS}")
     n = config.field_size**2

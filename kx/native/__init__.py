@@ -105,10 +105,14 @@ def unavailable() -> str:
 
 
 def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy: jax.Array | None,
-             fused: bool) -> jax.Array:
+             fused: bool, round_offset: float) -> jax.Array:
     """``kx_bev_sums``: the authors' image's sums ``[R, *B]`` at output rows ``rows [R, *B]`` of each lane's
     genome ``index [*B]`` (:func:`kx.hyperneat.bev.sparse_outputs` with ``activation=None``); ``fused``:
-    one rounding per multiply-add or two, as XLA's compiled chain does under the process's flags."""
+    one rounding per multiply-add or two, as XLA's compiled chain does under the process's flags;
+    ``round_offset``: the digital line's (``kx.hyperneat.bev.ROUND_OFFSET``). The image's values are
+    :mod:`kx.sim.observe`'s ``BEV_AUTHORS_*``."""
+    from kx.sim import observe
+
     why = unavailable()
     if why:
         raise RuntimeError(f"kx.native: not available ({why})")
@@ -118,7 +122,10 @@ def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy
     call = jax.ffi.ffi_call(TARGET, jax.ShapeDtypeStruct(rows.shape, jnp.float32), vmap_method="sequential")
     return call(table["w"], table["b"], i32(index), i32(rows), i32(state.keeper_x), i32(state.keeper_y),
                 i32(state.taker_x), i32(state.taker_y), i32(state.holder), jnp.asarray(busy, bool),
-                width=np.int64(config.field_size), fused=bool(fused))
+                width=np.int64(config.field_size), fused=bool(fused),
+                holder_value=np.float32(observe.BEV_AUTHORS_HOLDER),
+                teammate_value=np.float32(observe.BEV_AUTHORS_TEAMMATE),
+                taker_value=np.float32(observe.BEV_AUTHORS_TAKER), round_offset=np.float32(round_offset))
 
 
 def main() -> None:

@@ -27,7 +27,6 @@ namespace {
 
 constexpr int kMaxAgents = 64;
 constexpr int kMaxEntries = 64 * 62 + 64;
-constexpr float kHolder = 1.0f, kTeammate = 0.5f, kTaker = -1.0f, kRoundOffset = 0.501f;
 
 struct Image {
   int32_t cell[kMaxEntries];
@@ -40,6 +39,9 @@ struct Lanes {
   int32_t k, t, width;
   const int32_t *kx, *ky, *tx, *ty, *holder;
   const bool* busy;
+  // the image's values (kx.sim.observe.BEV_AUTHORS_*) and the digital line's offset (bev.ROUND_OFFSET),
+  // passed by the caller so that they have one home
+  float holder_value, teammate_value, taker_value, round_offset;
 };
 
 inline int32_t Sign(int32_t v) { return (v > 0) - (v < 0); }
@@ -57,8 +59,8 @@ inline void ForEachEntry(const Lanes& s, int64_t l, Add&& add) {
     for (int32_t a = 0; a < s.k + s.t; ++a) add(0.0f, hc);
     return;
   }
-  for (int32_t i = 0; i < s.k; ++i) add(i == h ? kHolder : kTeammate, s.kx[i * n + l] + w * s.ky[i * n + l]);
-  for (int32_t j = 0; j < s.t; ++j) add(kTaker, s.tx[j * n + l] + w * s.ty[j * n + l]);
+  for (int32_t i = 0; i < s.k; ++i) add(i == h ? s.holder_value : s.teammate_value, s.kx[i * n + l] + w * s.ky[i * n + l]);
+  for (int32_t j = 0; j < s.t; ++j) add(s.taker_value, s.tx[j * n + l] + w * s.ty[j * n + l]);
   for (int32_t p = 0; p < s.k - 1 + s.t; ++p) {
     int32_t x, y;
     float sg;
@@ -75,7 +77,7 @@ inline void ForEachEntry(const Lanes& s, int64_t l, Add&& add) {
     const float slope = static_cast<float>(x_major ? dy : dx) / static_cast<float>(std::max(steps, 1));
     const float value = sg / (1.0f + std::sqrt(static_cast<float>(dx * dx + dy * dy)));
     for (int32_t i = 1; i < steps; ++i)
-      add(value, hc + i * major + minor * static_cast<int32_t>(std::floor(static_cast<float>(i) * slope + kRoundOffset)));
+      add(value, hc + i * major + minor * static_cast<int32_t>(std::floor(static_cast<float>(i) * slope + s.round_offset)));
   }
 }
 
@@ -171,7 +173,8 @@ static ffi::Error BevSumsImpl(ffi::Buffer<ffi::F32> w, ffi::Buffer<ffi::F32> b, 
                               ffi::Buffer<ffi::S32> rows, ffi::Buffer<ffi::S32> keeper_x,
                               ffi::Buffer<ffi::S32> keeper_y, ffi::Buffer<ffi::S32> taker_x,
                               ffi::Buffer<ffi::S32> taker_y, ffi::Buffer<ffi::S32> holder,
-                              ffi::Buffer<ffi::PRED> busy, int64_t width, bool fused,
+                              ffi::Buffer<ffi::PRED> busy, int64_t width, bool fused, float holder_value,
+                              float teammate_value, float taker_value, float round_offset,
                               ffi::ResultBuffer<ffi::F32> out) {
   const int64_t lanes = index.element_count();
   if (lanes == 0) return ffi::Error::Success();
@@ -183,7 +186,7 @@ static ffi::Error BevSumsImpl(ffi::Buffer<ffi::F32> w, ffi::Buffer<ffi::F32> b, 
     return ffi::Error::InvalidArgument("kx_bev_sums: the table is not [G, N, N] and [G, N] with N = width^2");
   const Lanes s{lanes, static_cast<int32_t>(k), static_cast<int32_t>(t), static_cast<int32_t>(width),
                 keeper_x.typed_data(), keeper_y.typed_data(), taker_x.typed_data(), taker_y.typed_data(),
-                holder.typed_data(), busy.typed_data()};
+                holder.typed_data(), busy.typed_data(), holder_value, teammate_value, taker_value, round_offset};
   const int64_t n_rows = rows.element_count() / lanes;
   if (fused) {
     Sums<true>(s, w.typed_data(), b.typed_data(), index.typed_data(), rows.typed_data(), n_rows, n_cells,
@@ -209,4 +212,8 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(KxBevSums, BevSumsImpl,
                                   .Arg<ffi::Buffer<ffi::PRED>>()  // busy [*B]
                                   .Attr<int64_t>("width")
                                   .Attr<bool>("fused")
+                                  .Attr<float>("holder_value")
+                                  .Attr<float>("teammate_value")
+                                  .Attr<float>("taker_value")
+                                  .Attr<float>("round_offset")
                                   .Ret<ffi::Buffer<ffi::F32>>());  // sums [R, *B]
