@@ -1,8 +1,9 @@
-"""Experiments: ``python -m kx.experiments {table3,novelty,report,sweep}``.
+"""Experiments: ``python -m kx.experiments {table3,confirm,novelty,report,sweep}``.
 
     python -m kx.experiments table3 --runs 20 --out runs/table3            # the paper's protocol (SPEC section 6)
     python -m kx.experiments table3 --runs 5 --methods neat --targets 4v3 --out runs/t3   # a part of it
     python -m kx.experiments novelty --out docs/novelty                   # the hybrid's readings (issue 32)
+    python -m kx.experiments confirm --basis docs/table3 --out runs/confirm # a confirmatory replication
     python -m kx.experiments report runs/table3                            # report.md + PNGs from results.csv
     python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\
         --grid hyperneat.image=paper,authors --seeds 0-4 --out runs/image  # an ablation sweep
@@ -70,6 +71,15 @@ def main(argv: list[str] | None = None) -> int:
                    help="a config override for every run (population_size=50, trials=10, ...); repeatable")
     t.add_argument("--batch", type=int, default=16,
                    help="runs of one cell trained as one batched group (kx.evolve.group), at most; 1: one by one")
+    c = sub.add_parser("confirm", help="a confirmatory replication of Table 3: a source of its own per target run, "
+                                       "runs a cell fixed in advance from an earlier folder's power, one look")
+    c.add_argument("--out", required=True, help="the confirmatory folder (protocol.json, results.csv, report.md)")
+    c.add_argument("--basis", default=None,
+                   help="the earlier protocol folder whose observed effects fix the runs a cell (a new folder only)")
+    c.add_argument("--seed", type=int, default=1, help="the protocol seed (default 1; docs/table3's is 0)")
+    c.add_argument("--batch", type=int, default=16, help="run indices a round, and runs a batched group (default 16)")
+    c.add_argument("--design-only", action="store_true",
+                   help="write protocol.json with the design and stop (commit it before the first run)")
     n = sub.add_parser("novelty", help="the novelty hybrid's readings over seeds (docs/novelty.md)")
     n.add_argument("--out", required=True, help="the sweep's folder (one table3 folder per arm, report.md)")
     n.add_argument("--arms", type=_list, default=None, help="the arms to run (default: every one)")
@@ -102,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     from kx.evolve.errors import RunError
 
     shard = processes.ALONE
-    if args.command != "report":
+    if args.command not in ("report", "confirm"):
         if args.processes < 1:
             print(f"python -m kx.experiments {args.command}: --processes: allowed an integer >= 1, got "
                   f"{args.processes}", file=sys.stderr)
@@ -133,6 +143,14 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 from kx.experiments import report
                 print(report.write(d))
+            return 0
+        if args.command == "confirm":
+            from kx.experiments import confirm, report
+            from kx.experiments import table3 as t3
+            confirm.run(args.out, t3.Protocol(seed=args.seed, sources="per_target"), args.basis, batch=args.batch,
+                        design_only=args.design_only)
+            if not args.design_only:
+                print(report.write(args.out))
             return 0
         if args.command == "novelty":
             from kx.experiments import novelty

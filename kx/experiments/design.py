@@ -89,12 +89,39 @@ TITLES = {"transfer": "Policy transfer beats evolving from scratch",
           "hyperneat": "HyperNEAT beats NEAT"}
 
 
-def design() -> dict:
-    """The design as protocol.json records it: its parameters, and under ``text`` their description (only the
-    parameters are compared when a folder is extended: rewording the description locks no folder out)."""
-    from kx.experiments import stats
+#: the pooled test (:func:`kx.experiments.stats.clustered_van_elteren`), as protocol.json names it
+TEST = "clustered_van_elteren"
+#: the margin of "no meaningful difference": a comparison whose interval of the averaged probability of
+#: improvement lies inside it, and that the test does not decide, gets that verdict
+MARGIN = (0.40, 0.60)
+#: an exploratory folder's looks (runs a cell): the protocol's count, then up to the extension's
+LOOKS = (RUNS_PER_CELL, EXTEND_UP_TO)
+#: a confirmatory design's largest affordable run count a cell
+CONFIRMATORY_MOST = 40
+SOURCES = ("shared", "per_target")
+ROLES = ("exploratory", "confirmatory")
 
-    return {
+
+def design(role: str = "exploratory", sources: str = "shared", runs: dict | None = None,
+           basis: dict | None = None) -> dict:
+    """The design as protocol.json records it: its parameters, and under ``text`` their description (only the
+    parameters are compared when a folder is extended: rewording the description locks no folder out).
+
+    ``role`` ``exploratory`` (the default of ``python -m kx.experiments table3``): :data:`RUNS_PER_CELL` runs a
+    cell, extendable up to :data:`EXTEND_UP_TO` where power asks for it, the two looks paid for by the sequential
+    plan (:mod:`kx.experiments.sequential`). ``confirmatory``: every cell's runs fixed in advance (``runs``:
+    ``{"method/setup": n}``), one look when all are in, and ``basis``: what the run counts were derived from.
+    ``sources``: ``shared`` (run i of every target from source i: the targets' runs are clusters) or
+    ``per_target`` (each target run from a source of its own: every run independent)."""
+    from kx.experiments import sequential, stats
+
+    if role not in ROLES:
+        raise ValueError(f"role: allowed {', '.join(ROLES)}, got {role!r}")
+    if sources not in SOURCES:
+        raise ValueError(f"sources: allowed {', '.join(SOURCES)}, got {sources!r}")
+    if (role == "confirmatory") != (runs is not None):
+        raise ValueError("runs: a confirmatory design fixes every cell's runs, an exploratory one none")
+    out = {
         "measures": list(MEASURES),
         "alpha": ALPHA,
         "primary": [c.key for c in PRIMARY],
@@ -104,21 +131,78 @@ def design() -> dict:
         "power_resamples": stats.POWER_RESAMPLES,
         "power_runs": list(POWER_RUNS),
         "power_goal": POWER_GOAL,
-        "runs_per_cell": RUNS_PER_CELL,
-        "extend_up_to": EXTEND_UP_TO,
-        "text": {
-            "pooled_test": "van Elteren's stratified rank-sum test over the targets (weights 1/(n+1) per target, "
-                           "midranks, normal approximation with the tie correction), two-sided; its direction the "
-                           "sign of z",
-            "effect": "probability of improvement averaged over the targets, stratified-bootstrap 95% interval",
-            "correction": "Holm within each family and measure, over the whole family (claims without runs "
-                          "count with p = 1)",
-            "per_target": "two-sided Mann-Whitney U, Vargha-Delaney A, Holm over each table (detail)",
-            "power": "the probability that the pooled test gives p < alpha / (family size) in the observed "
-                     "direction, at the observed effect: every cell's runs resampled with replacement to n runs; "
-                     "the runs a cell for the goal: the smallest n of power_runs that reaches it",
-        },
+        "role": role,
+        "test": TEST,
+        "cluster_resamples": stats.CLUSTER_RESAMPLES,
+        "sources": sources,
+        "spending": sequential.SPENDING,
+        "margin": list(MARGIN),
     }
+    if role == "exploratory":
+        out.update(runs_per_cell=RUNS_PER_CELL, extend_up_to=EXTEND_UP_TO, looks=list(LOOKS))
+    else:
+        out.update(runs=dict(runs), looks="planned", most_runs=CONFIRMATORY_MOST)
+        if basis is not None:
+            out["basis"] = basis
+    out["text"] = {
+        "pooled_test": "van Elteren's stratified rank-sum statistic over the targets (weights 1/(n+1) per target, "
+                       "midranks) with a cluster-robust variance: a cluster is the runs that share a source (run i "
+                       "of a transfer cell in every target when sources are shared) or a run alone; each cell's "
+                       "part from its clusters' summed placements (C/(C-1) per group of clusters with runs in the "
+                       "same targets), two-sided against Student's t with Welch-Satterthwaite degrees of freedom; its "
+                       "direction the sign of the statistic",
+        "effect": "probability of improvement averaged over the targets, 95% percentile interval of a bootstrap "
+                  "that resamples whole clusters within each cell (within each target for independent runs)",
+        "correction": "Holm within each family and measure over the comparisons' sequential p-values (claims "
+                      "without runs count with p = 1)",
+        "looks": ("two looks, at runs_per_cell and at up to extend_up_to runs a cell; O'Brien-Fleming-type "
+                  "alpha spending (Lan & DeMets 1983) at information fraction runs / extend_up_to; a comparison "
+                  "decided at the last look it had" if role == "exploratory" else
+                  "one look, when every cell holds its planned runs: no verdict before"),
+        "equivalence": "where the test does not decide and the interval of the averaged probability of improvement "
+                       "lies inside the margin: no meaningful difference",
+        "per_target": "two-sided Mann-Whitney U, Vargha-Delaney A, Holm over each table (detail)",
+        "power": "the probability that the pooled test gives p < alpha / (family size) in the observed direction, "
+                 "at the observed effect: every cell's clusters resampled with replacement to n runs; the runs a "
+                 "cell for the goal: the smallest n of power_runs that reaches it",
+    }
+    return out
+
+
+#: the parameters a design of the first kind (van Elteren's test with independent strata, no looks, no margin)
+#: recorded, and what they mean in today's terms: such a folder is read as an exploratory one with shared sources
+FIRST_DESIGN_KEYS = ("measures", "alpha", "primary", "secondary (exploratory)", "resamples", "bootstrap_seed",
+                     "power_resamples", "power_runs", "power_goal", "runs_per_cell", "extend_up_to")
+CORRECTED = ("the pooled test made valid for targets that share sources (clusters as the unit), the looks paid for "
+             "by a sequential plan and the margin of no meaningful difference, applied after the fact to the runs "
+             "already made")
+
+
+def effective(recorded: dict) -> dict:
+    """The design a folder is analysed by, from its recorded one: a design of the first kind (no ``test``) is read
+    as today's exploratory design with shared sources and its own parameters (:data:`CORRECTED`)."""
+    if "test" in recorded:
+        return recorded
+    missing = [k for k in FIRST_DESIGN_KEYS if k not in recorded]
+    if missing:
+        raise RunError(f"design: not a kx table3 design (missing {', '.join(missing)})")
+    out = design()
+    out.update({k: recorded[k] for k in FIRST_DESIGN_KEYS})
+    out["looks"] = [recorded["runs_per_cell"], recorded["extend_up_to"]]
+    return out
+
+
+def of_folder(out: pathlib.Path) -> dict:
+    """The effective design (:func:`effective`) of the folder ``out`` (its protocol.json's; today's exploratory
+    design where it records none)."""
+    path = pathlib.Path(out) / "protocol.json"
+    have = json.loads(path.read_text()) if path.is_file() else {}
+    return effective(have["design"]) if "design" in have else design(sources=have.get("sources", "shared"))
+
+
+def planned_runs(dsg: dict, method: str, setup: str) -> int | None:
+    """The runs a cell ``method/setup`` is planned to hold in every target: a confirmatory design's, or ``None``."""
+    return dsg["runs"].get(f"{method}/{setup}") if dsg.get("role") == "confirmatory" else None
 
 
 #: what a start state draws from its key (the rest of :class:`kx.sim.types.State` starts at constants): the
@@ -157,18 +241,26 @@ def test_state_digests(protocol, tasks) -> dict[str, str]:
     return out
 
 
-def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] = print) -> None:
+def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] = print,
+                 want_design: dict | None = None) -> None:
     """Checks ``out/protocol.json`` (written by :func:`kx.experiments.table3.run` before this) against this
     code: its ``test_states`` must be the states this code draws for every task of ``tasks``, and its
-    ``design`` this design; a file from before either was recorded gains it (said in ``log``). ``RunError``
-    naming the field otherwise, before any compute."""
+    ``design`` ``want_design`` (default: the exploratory :func:`design` of the protocol's sources); a file from
+    before either was recorded gains it, and a design of the first kind is corrected (:func:`effective`, the old
+    one kept under ``design_history``), each said in ``log``. ``RunError`` naming the field otherwise, before any
+    compute."""
     path = pathlib.Path(out) / "protocol.json"
     have = json.loads(path.read_text())
     tasks = tuple(tasks)
     states = {"stream": "kx.evolve.streams.test(seed)", "seed": protocol.seed, "trials": protocol.test_trials,
               "sha256": test_state_digests(protocol, tasks)}
-    want = {"test_states": states, "design": design()}
+    want = {"test_states": states, "design": want_design or design(sources=protocol.sources)}
     added = []
+    if "design" in have and "test" not in have["design"]:
+        old = have["design"]
+        have["design"] = effective(old)
+        have.setdefault("design_history", []).append({"design": old, "corrected": CORRECTED})
+        added.append("the corrected design (" + CORRECTED + "; the first kept under design_history)")
     for key, value in want.items():
         if key not in have:
             have[key] = value

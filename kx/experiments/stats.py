@@ -258,3 +258,231 @@ def runs_needed(a_by, b_by, level: float, goal: float, candidates, direction: in
         if power(a_by, b_by, level, runs=n, direction=direction) >= goal:
             return int(n)
     return None
+
+
+# ---------------------------------------------------- pooled over targets that share sources: clusters as the unit
+#
+# A cell's runs are a matrix ``[clusters, strata]``: row ``i`` holds a cluster's value in each target (NaN where it has
+# no run there). In a transfer cell of a protocol whose targets share sources, run ``i`` of every target descends
+# from source ``i``: one row, correlated across its columns. In a cell of independent runs (no transfer, or a source
+# of its own per target run) every run is a cluster of its own: one value a row. Rows are independent; the columns
+# of one row need not be.
+
+#: bootstrap resamples of the clustered interval of the averaged probability of improvement
+CLUSTER_RESAMPLES = 2000
+
+
+def cluster_matrix(by_target: list[dict], shared: bool) -> np.ndarray:
+    """A cell as ``[clusters, strata]``: ``by_target[t]`` maps a run index to its value in stratum ``t``. ``shared``:
+    run ``i`` of every stratum is one cluster (they share source ``i``); else every run is a cluster of its own."""
+    strata = len(by_target)
+    if shared:
+        runs = sorted(set().union(*[set(d) for d in by_target]))
+        out = np.full((len(runs), strata), np.nan)
+        for t, d in enumerate(by_target):
+            for i, r in enumerate(runs):
+                if r in d:
+                    out[i, t] = d[r]
+    else:
+        rows = [(t, v) for t, d in enumerate(by_target) for _, v in sorted(d.items())]
+        out = np.full((len(rows), strata), np.nan)
+        for i, (t, v) in enumerate(rows):
+            out[i, t] = v
+    if out.size and not np.all(np.isfinite(out[~np.isnan(out)])):
+        raise ValueError("values must be finite")
+    return out
+
+
+def _check_cells(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.ndim != 2 or b.ndim != 2 or a.shape[1] != b.shape[1] or a.shape[1] == 0:
+        raise ValueError(f"cells must be [clusters, strata] with the same strata, got shapes {a.shape} and {b.shape}")
+    have_a, have_b = (~np.isnan(a)).sum(0), (~np.isnan(b)).sum(0)
+    if np.any(have_a == 0) or np.any(have_b == 0):
+        raise ValueError(f"every stratum needs values in both cells, got runs {have_a.tolist()} and {have_b.tolist()}")
+    return a, b
+
+
+def _clustered_parts(x: np.ndarray, y: np.ndarray):
+    """For data sets ``x [R, Ca, T]`` and ``y [R, Cb, T]`` (NaN: no run): van Elteren's centred statistic ``[R]``,
+    its cluster-robust variance ``[R]`` with each cell's part apart, the clusters each cell has, and the probability of
+    improvement averaged over the strata ``[R]``.
+
+    The statistic is ``sum_t w_t (U_t - n_t m_t / 2)``, ``U_t`` the Mann-Whitney count of stratum ``t`` (ties half) and
+    ``w_t = 1 / (n_t + m_t + 1)`` van Elteren's weight. Its variance comes from the statistic's first-order (Hajek)
+    projection on the runs: a run ``x_ti`` adds ``w_t (S_ti - m_t A_t)``, ``S_ti`` the runs of ``y`` it beats and
+    ``A_t`` the stratum's probability of improvement (DeLong et al. 1988's placements), and a run of ``y``
+    symmetrically. A cluster's contribution is the sum of its runs' over the strata, so the correlation of a
+    cluster's runs across strata enters the variance (Liang & Zeger's sandwich with clusters as the unit); each cell's
+    part is ``C / (C - 1)`` times the sum of its clusters' squared contributions."""
+    num = np.zeros(x.shape[0])
+    za = np.zeros(x.shape[:2])
+    zb = np.zeros(y.shape[:2])
+    poi = np.zeros(x.shape[0])
+    strata = x.shape[-1]
+    for t in range(strata):
+        xt, yt = x[..., t], y[..., t]
+        mx, my = ~np.isnan(xt), ~np.isnan(yt)
+        n, m = mx.sum(-1).astype(np.float64), my.sum(-1).astype(np.float64)
+        psi = (xt[:, :, None] > yt[:, None, :]) + 0.5 * (xt[:, :, None] == yt[:, None, :])  # NaN compares False
+        sx, sy = psi.sum(-1), psi.sum(-2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            a_t = sx.sum(-1) / (n * m)
+        w = 1.0 / (n + m + 1.0)
+        num += w * (sx.sum(-1) - n * m / 2.0)
+        za += np.where(mx, w[:, None] * (sx - m[:, None] * a_t[:, None]), 0.0)
+        zb += np.where(my, w[:, None] * (sy - n[:, None] * a_t[:, None]), 0.0)
+        poi += a_t / strata
+    va, dfa = _cell_variance(za, x)
+    vb, dfb = _cell_variance(zb, y)
+    return num, va, vb, dfa, dfb, poi
+
+
+def _cell_variance(z: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A cell's part of the variance from its clusters' contributions ``z [R, C]``, and its degrees of freedom: per
+    group of clusters with runs in the same strata (:func:`_groups`: one group for complete shared clusters, one a
+    stratum for independent runs), ``C_g / (C_g - 1)`` times the sum of the group's squared contributions (each
+    group's contributions are centred within a stratum, so each loses one degree of freedom), and Welch-Satterthwaite's
+    degrees of freedom over the groups' parts. The groups are those of the data set's first resample's pattern of
+    runs (resamples keep it: :func:`resample_clusters`)."""
+    var = np.zeros(z.shape[0])
+    parts = []
+    for g in _groups(cells[0]):
+        c = float(g.size)
+        part = c / (c - 1) * (z[:, g] ** 2).sum(-1) if c > 1 else np.full(z.shape[0], np.nan)
+        var = var + part
+        parts.append((part, c - 1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        df = var**2 / sum(p**2 / d if d > 0 else np.nan for p, d in parts)
+    return var, df
+
+
+def clustered_z(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The clustered van Elteren statistic of data sets ``x [R, Ca, T]`` against ``y [R, Cb, T]``: ``(t [R], df [R])``,
+    the statistic over its cluster-robust standard error and the degrees of freedom of its reference t distribution
+    (Welch-Satterthwaite over the two cells' parts, each with its clusters less one). ``t`` is NaN where the
+    variance is zero (nothing varies)."""
+    num, va, vb, dfa, dfb, _ = _clustered_parts(x, y)
+    var = va + vb
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = np.where(var > 0, num / np.sqrt(np.where(var > 0, var, 1.0)), np.nan)
+        df = np.where(var > 0, var**2 / (va**2 / dfa + vb**2 / dfb), np.nan)
+    return t, df
+
+
+def clustered_p(t: np.ndarray, df: np.ndarray) -> np.ndarray:
+    """Two-sided p of :func:`clustered_z`'s statistic: Student's t with its degrees of freedom (1 where it is NaN)."""
+    t, df = np.asarray(t, np.float64), np.asarray(df, np.float64)
+    with np.errstate(invalid="ignore"):
+        p = 2 * scipy.stats.t.sf(np.abs(t), np.where(np.isnan(df), 1.0, df))
+    return np.where(np.isnan(t), 1.0, p)
+
+
+@dataclasses.dataclass(frozen=True)
+class Clustered:
+    """``a`` against ``b`` over strata with clusters as the unit (:func:`clustered_van_elteren`): the statistic, its
+    degrees of freedom and two-sided p, the normal deviate of that p (signed: what a group-sequential boundary
+    reads), the averaged probability of improvement with its cluster-bootstrap 95% interval, the mean of the strata's
+    mean differences, and each cell's clusters and runs a stratum."""
+
+    strata: int
+    clusters: tuple[int, int]
+    n_a: tuple[int, ...]
+    n_b: tuple[int, ...]
+    z: float
+    df: float
+    p: float
+    z_equivalent: float
+    poi: Interval
+    diff: float
+
+
+def clustered_van_elteren(a: np.ndarray, b: np.ndarray) -> Clustered:
+    """van Elteren's stratified rank-sum statistic of cell ``a`` against cell ``b`` (each ``[clusters, strata]``:
+    :func:`cluster_matrix`) with a cluster-robust variance, so that it holds its level when a cluster's runs in
+    several strata are correlated (targets transferred from one source): t reference with Welch-Satterthwaite
+    degrees of freedom, two-sided. With one run a cluster it is van Elteren's statistic with the placements'
+    variance instead of the permutation variance. p is 1 where nothing varies."""
+    a, b = _check_cells(a, b)
+    t, df = clustered_z(a[None], b[None])
+    t, df = float(t[0]), float(df[0])
+    p = float(clustered_p(np.array([t]), np.array([df]))[0])
+    zeq = 0.0 if math.isnan(t) else math.copysign(float(scipy.stats.norm.isf(p / 2)), t)
+    diffs = [np.nanmean(a[:, s]) - np.nanmean(b[:, s]) for s in range(a.shape[1])]
+    return Clustered(a.shape[1], (int((~np.isnan(a)).any(1).sum()), int((~np.isnan(b)).any(1).sum())),
+                     tuple(int(v) for v in (~np.isnan(a)).sum(0)), tuple(int(v) for v in (~np.isnan(b)).sum(0)),
+                     0.0 if math.isnan(t) else t, df, p, zeq, clustered_improvement(a, b), float(np.mean(diffs)))
+
+
+def _groups(cell: np.ndarray) -> list[np.ndarray]:
+    """A cell's clusters grouped by the strata they have runs in (one group for complete shared clusters; one per
+    stratum for independent runs): the bootstrap resamples within each group, so a resample keeps a stratified
+    design's runs a stratum."""
+    present = ~np.isnan(cell)
+    patterns: dict[bytes, list[int]] = {}
+    for i, row in enumerate(present):
+        patterns.setdefault(row.tobytes(), []).append(i)
+    return [np.asarray(v) for v in patterns.values()]
+
+
+def resample_clusters(cell: np.ndarray, rng: np.random.Generator, resamples: int, runs: int | None = None) -> np.ndarray:
+    """``[resamples, clusters, strata]``: the cell's clusters drawn with replacement within each group of
+    :func:`_groups`, each group to its own size (``runs`` None) or to ``runs`` times its share of the largest group
+    (``runs`` a stratum for independent runs, ``runs`` clusters for complete shared ones)."""
+    groups = _groups(cell)
+    largest = max(g.size for g in groups)
+    parts = []
+    for g in groups:
+        k = g.size if runs is None else max(1, round(runs * g.size / largest))
+        parts.append(g[rng.integers(0, g.size, size=(resamples, k))])
+    return cell[np.concatenate(parts, axis=1)]
+
+
+def clustered_improvement(a: np.ndarray, b: np.ndarray, resamples: int = CLUSTER_RESAMPLES,
+                          seed: int = BOOTSTRAP_SEED) -> Interval:
+    """The probability of improvement of ``a`` over ``b`` averaged over the strata, with its 95% percentile
+    interval from a bootstrap that resamples whole clusters within each cell (and within each stratum where a
+    cell's runs are independent)."""
+    a, b = _check_cells(a, b)
+    value = float(_clustered_parts(a[None], b[None])[-1][0])
+    both = np.concatenate([a, b])
+    if np.ptp(both[~np.isnan(both)]) == 0:
+        return Interval(value, value, value)
+    if min(g.size for g in _groups(a) + _groups(b)) < 2:
+        return Interval(value, math.nan, math.nan)
+    rng = np.random.default_rng(seed)
+    vals = []
+    for lo in range(0, resamples, 500):  # in blocks: a block's comparisons stay in memory
+        k = min(500, resamples - lo)
+        vals.append(_clustered_parts(resample_clusters(a, rng, k), resample_clusters(b, rng, k))[-1])
+    low, high = np.percentile(np.concatenate(vals), [2.5, 97.5])
+    return Interval(value, float(low), float(high))
+
+
+def clustered_power(a: np.ndarray, b: np.ndarray, level: float, runs: int | None = None,
+                    resamples: int = POWER_RESAMPLES, seed: int = BOOTSTRAP_SEED, direction: int = 0) -> float:
+    """The probability that :func:`clustered_van_elteren` gives p < ``level`` at the observed effect: each cell's
+    clusters resampled with replacement (:func:`resample_clusters`, to ``runs`` runs a cell, or its own count),
+    ``resamples`` times. ``direction`` +1 or -1: only significance with that sign counts; 0: either."""
+    if direction not in (-1, 0, 1):
+        raise ValueError(f"direction: allowed -1, 0, 1, got {direction!r}")
+    a, b = _check_cells(a, b)
+    rng = np.random.default_rng(seed)
+    hits = 0
+    for lo in range(0, resamples, 250):
+        k = min(250, resamples - lo)
+        t, df = clustered_z(resample_clusters(a, rng, k, runs), resample_clusters(b, rng, k, runs))
+        p = clustered_p(t, df)
+        way = np.ones_like(p, bool) if direction == 0 else (np.sign(np.nan_to_num(t)) == direction)
+        hits += int(((p < level) & way).sum())
+    return hits / resamples
+
+
+def clustered_runs_needed(a: np.ndarray, b: np.ndarray, level: float, goal: float, candidates,
+                          direction: int = 0) -> int | None:
+    """The smallest run count of ``candidates`` (ascending) at which :func:`clustered_power` reaches ``goal``;
+    ``None`` if none does."""
+    for n in candidates:
+        if clustered_power(a, b, level, runs=n, direction=direction) >= goal:
+            return int(n)
+    return None

@@ -49,6 +49,7 @@ from kx.evolve.errors import RunError
 from kx.experiments import csvfile, design, measure
 
 METHODS = ("neat", "hyperneat", "cma_es", "ppo")
+SOURCES = ("shared", "per_target")
 SOURCE_TASK = "3v2"
 TARGETS = ("4v3", "5v3", "6v4")
 
@@ -92,6 +93,13 @@ class Protocol:
     source_generations: int = 20
     target_generations: int = 50
     overrides: tuple[str, ...] = ()  # config overrides applied to every run ("population_size=50", ...)
+    #: "shared": run i of a transfer setup in every target is seeded by source i (the paper's design: a target's
+    #: runs are correlated across the targets); "per_target": each target run by a source of its own
+    sources: str = "shared"
+
+    def __post_init__(self):
+        if self.sources not in SOURCES:
+            raise ValueError(f"sources: allowed {', '.join(SOURCES)}, got {self.sources!r}")
 
     def to_json(self) -> dict:
         return {**dataclasses.asdict(self), "overrides": list(self.overrides)}
@@ -101,11 +109,16 @@ class Protocol:
         """The protocol of a ``protocol.json`` (its records beside the parameters, ``design`` and
         ``test_states``, are :mod:`kx.experiments.design`'s)."""
         have = json.loads(pathlib.Path(path).read_text())
+        have = {**DEFAULTS, **have}
         fields = [f.name for f in dataclasses.fields(cls)]
         missing = [f for f in fields if f not in have]
         if missing:
             raise RunError(f"{path}: not a kx table3 protocol.json (missing {', '.join(missing)})")
         return cls(**{k: tuple(have[k]) if k == "overrides" else have[k] for k in fields})
+
+
+#: the parameters a protocol.json written before they existed is read with
+DEFAULTS = {"sources": "shared"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,10 +173,17 @@ def plan(methods=METHODS, targets=TARGETS, setups=tuple(SETUPS), runs: int = 20)
     return out
 
 
-def source_of(spec: RunSpec) -> RunSpec | None:
-    """The source run a target run is seeded from (run ``i`` from source ``i``), or ``None``."""
+def source_of(spec: RunSpec, sources: str = "shared") -> RunSpec | None:
+    """The source run a target run is seeded from, or ``None``: with ``sources`` ``shared`` run ``i`` of every
+    target from source ``i``; with ``per_target`` run ``i`` of target ``k`` (its index in :data:`TARGETS`) from source
+    ``3 i + k``, a source of its own."""
     objective = SETUPS[spec.setup].source_objective if spec.phase == "target" else None
-    return None if objective is None else RunSpec(spec.method, objective, "source", SOURCE_TASK, spec.run)
+    if objective is None:
+        return None
+    if sources not in SOURCES:
+        raise ValueError(f"sources: allowed {', '.join(SOURCES)}, got {sources!r}")
+    index = spec.run if sources == "shared" else spec.run * len(TARGETS) + TARGETS.index(spec.target)
+    return RunSpec(spec.method, objective, "source", SOURCE_TASK, index)
 
 
 def run_dir(out: pathlib.Path, spec: RunSpec) -> pathlib.Path:
@@ -183,7 +203,7 @@ def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collectio
     kx.bench transfer`` builds its sources and targets with it too."""
     generations = protocol.source_generations if spec.phase == "source" else protocol.target_generations
     objective = spec.setup if spec.phase == "source" else SETUPS[spec.setup].objective
-    src = source_of(spec)
+    src = source_of(spec, protocol.sources)
     over = [*protocol.overrides, "gif=false", f"objective={objective}", f"seed={run_seed(protocol.seed, *spec.key)}"]
     if src is not None:
         over.append(f"transfer.source={run_dir(out, src)}")
@@ -237,6 +257,7 @@ def _same_protocol(out: pathlib.Path, protocol: Protocol) -> bool:
     if not path.is_file():
         return False
     have, want = json.loads(path.read_text()), protocol.to_json()
+    have = {**DEFAULTS, **have}
     diff = [f"{k}: {have.get(k)!r} in {path}, {want[k]!r} now" for k in want if have.get(k) != want[k]]
     if diff:
         raise RunError(f"{out} holds another protocol ({'; '.join(diff)}): use another --out, or the same "
@@ -257,7 +278,7 @@ def _open(out: pathlib.Path, protocol: Protocol) -> bool:
 def planned(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> dict:
     """The :data:`PLANNED` columns of the run of ``spec``, from its config (:func:`config`)."""
     cfg = config(protocol, spec, out)
-    src = source_of(spec)
+    src = source_of(spec, protocol.sources)
     src_evals = 0
     if src is not None:
         scfg = config(protocol, src, out)
@@ -440,7 +461,7 @@ def missing_sources(out: pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     again before their targets, and must reproduce their rows."""
     out_specs = []
     for spec in specs:
-        src = source_of(spec)
+        src = source_of(spec, protocol.sources)
         if (src is None or spec.key in recorded or src.key not in recorded or src in out_specs
                 or measure.finished(run_dir(out, src), config(protocol, src, out).generations)):
             continue
@@ -461,7 +482,8 @@ def merge_results(out: pathlib.Path) -> list[dict]:
 
 
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
-        log: Callable[[str], None] = print, batch: int = 16, shard: processes.Shard = processes.ALONE) -> list[dict]:
+        log: Callable[[str], None] = print, batch: int = 16, shard: processes.Shard = processes.ALONE,
+        design_record: dict | None = None) -> list[dict]:
     """Runs every run of ``specs`` not yet in ``out/results.csv`` (a transfer run's source first, even if
     not selected), in batched groups of up to ``batch`` runs of one cell (1: one by one), each run resumed
     from its checkpoint if a previous protocol was killed during it; appends each finished run's row.
@@ -479,7 +501,10 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     Under several processes (``shard``: :mod:`kx.processes`) each trains the runs it owns (a run index modulo
     the processes: a target and its source together) and writes their rows to its own process file; the
     leader merges the files of a killed run at the start and everyone's at the end, and alone writes
-    protocol.json. The results are those of one process, bit for bit."""
+    protocol.json. The results are those of one process, bit for bit.
+
+    ``design_record``: the statistical design the folder must record (:func:`kx.experiments.design.check_folder`;
+    default the exploratory design of the protocol's sources)."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
@@ -500,7 +525,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                            f"{results_path} is not the run the protocol's config gives now ({'; '.join(diff)}), so "
                            "it cannot be trained again to seed its targets: nothing was run")
     for spec in specs:  # a recorded source's finished directory must be the run of its row (a re-run killed
-        src = source_of(spec)  # before its check, a directory from elsewhere): read, not computed
+        src = source_of(spec, protocol.sources)  # before its check, a directory from elsewhere): read, not computed
         if (src is None or spec.key in recorded or src.key not in recorded or src in rebuild
                 or not measure.started(run_dir(out, src))):
             continue
@@ -511,16 +536,17 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                            "checked; nothing was run")
     created = _open(out, protocol) if shard.leader else False
     if shard.leader:
-        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log)
+        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log,
+                            design_record)
     shard.barrier("table3 protocol.json")
     if not shard.leader:
-        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), lambda s: None)
+        design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), lambda s: None, design_record)
     own_path = results_path if shard.count == 1 else csvfile.process_path(results_path, shard.index)
     own = rows if shard.count == 1 else []
     rebuild = [s for s in rebuild if shard.owns(s.run)]
     needed: list[RunSpec] = []
     for spec in specs:
-        src = source_of(spec)
+        src = source_of(spec, protocol.sources)
         for s in ((src,) if src is not None else ()) + (spec,):
             if s.key not in recorded and s not in needed and shard.owns(s.run):
                 needed.append(s)
