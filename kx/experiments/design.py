@@ -148,9 +148,9 @@ def design(role: str = "exploratory", sources: str = "shared", runs: dict | None
         "pooled_test": "van Elteren's stratified rank-sum statistic over the targets (weights 1/(n+1) per target, "
                        "midranks) with a cluster-robust variance: a cluster is the runs that share a source (run i "
                        "of a transfer cell in every target when sources are shared) or a run alone; each cell's "
-                       "part from its clusters' summed placements (C/(C-1) per group of clusters with runs in the "
-                       "same targets), two-sided against Student's t with Welch-Satterthwaite degrees of freedom; its "
-                       "direction the sign of the statistic",
+                       "part from its clusters' sums of weighted rank scores, C/(C-1) times their squared deviations "
+                       "per group of clusters with runs in the same targets; two-sided against Student's t with "
+                       "Welch-Satterthwaite degrees of freedom; its direction the sign of the statistic",
         "effect": "probability of improvement averaged over the targets, 95% percentile interval of a bootstrap "
                   "that resamples whole clusters within each cell (within each target for independent runs)",
         "correction": "Holm within each family and measure over the comparisons' sequential p-values (claims "
@@ -194,10 +194,16 @@ def effective(recorded: dict) -> dict:
 
 def of_folder(out: pathlib.Path) -> dict:
     """The effective design (:func:`effective`) of the folder ``out`` (its protocol.json's; today's exploratory
-    design where it records none)."""
+    design where it records none), with ``corrected_after_runs`` where the correction was applied after runs were
+    made (a design of the first kind, or one whose folder keeps a ``design_history``)."""
     path = pathlib.Path(out) / "protocol.json"
     have = json.loads(path.read_text()) if path.is_file() else {}
-    return effective(have["design"]) if "design" in have else design(sources=have.get("sources", "shared"))
+    if "design" not in have:
+        return design(sources=have.get("sources", "shared"))
+    out = dict(effective(have["design"]))
+    if "test" not in have["design"] or have.get("design_history"):
+        out["corrected_after_runs"] = True  # read by the report, never recorded
+    return out
 
 
 def planned_runs(dsg: dict, method: str, setup: str) -> int | None:

@@ -305,34 +305,39 @@ def _check_cells(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _clustered_parts(x: np.ndarray, y: np.ndarray):
     """For data sets ``x [R, Ca, T]`` and ``y [R, Cb, T]`` (NaN: no run): van Elteren's centred statistic ``[R]``,
-    its cluster-robust variance ``[R]`` with each cell's part apart, the clusters each cell has, and the probability of
+    each cell's part of its cluster-robust variance and degrees of freedom ``[R]``, and the probability of
     improvement averaged over the strata ``[R]``.
 
-    The statistic is ``sum_t w_t (U_t - n_t m_t / 2)``, ``U_t`` the Mann-Whitney count of stratum ``t`` (ties half) and
-    ``w_t = 1 / (n_t + m_t + 1)`` van Elteren's weight. Its variance comes from the statistic's first-order (Hajek)
-    projection on the runs: a run ``x_ti`` adds ``w_t (S_ti - m_t A_t)``, ``S_ti`` the runs of ``y`` it beats and
-    ``A_t`` the stratum's probability of improvement (DeLong et al. 1988's placements), and a run of ``y``
-    symmetrically. A cluster's contribution is the sum of its runs' over the strata, so the correlation of a
-    cluster's runs across strata enters the variance (Liang & Zeger's sandwich with clusters as the unit); each cell's
-    part is ``C / (C - 1)`` times the sum of its clusters' squared contributions."""
+    The statistic is ``sum_t w_t (W_t - n_t (N_t + 1) / 2)``, ``W_t`` the sum of ``x``'s midranks among the ``N_t =
+    n_t + m_t`` runs of stratum ``t`` and ``w_t = 1 / (N_t + 1)`` van Elteren's weight. With a run's rank score
+    ``s = R - (N_t + 1) / 2`` (they sum to zero over a stratum) it is the difference of the two cells' score sums,
+    ``sum_t w_t (m_t / N_t) sum_x s - sum_t w_t (n_t / N_t) sum_y s``: each cell's part is a sum over its clusters of
+    their runs' terms, summed over the strata, so its variance is estimated from the clusters' sums (Liang & Zeger's
+    sandwich with clusters as the unit; for rank scores Rosner, Glynn & Lee 2006): ``C / (C - 1)`` times the sum of
+    the squared deviations of the clusters' sums from their group's mean, per group of clusters with runs in the same
+    strata (:func:`_groups`). A cluster's correlation across the strata thus enters its variance; with one run a
+    cluster and equal distributions it is the permutation variance's large-sample value."""
     num = np.zeros(x.shape[0])
     za = np.zeros(x.shape[:2])
     zb = np.zeros(y.shape[:2])
     poi = np.zeros(x.shape[0])
     strata = x.shape[-1]
     for t in range(strata):
-        xt, yt = x[..., t], y[..., t]
+        # only the rows with a run in this stratum in some data set (independent runs: a third of a cell's rows)
+        ka, kb = np.flatnonzero((~np.isnan(x[..., t])).any(0)), np.flatnonzero((~np.isnan(y[..., t])).any(0))
+        xt, yt = x[:, ka, t], y[:, kb, t]
         mx, my = ~np.isnan(xt), ~np.isnan(yt)
         n, m = mx.sum(-1).astype(np.float64), my.sum(-1).astype(np.float64)
-        psi = (xt[:, :, None] > yt[:, None, :]) + 0.5 * (xt[:, :, None] == yt[:, None, :])  # NaN compares False
-        sx, sy = psi.sum(-1), psi.sum(-2)
+        big = n + m
+        ranks = scipy.stats.rankdata(np.concatenate([xt, yt], axis=-1), axis=-1, nan_policy="omit")
+        score = np.nan_to_num(ranks - (big[:, None] + 1) / 2)  # absent runs: 0
+        sx, sy = score[:, :ka.size], score[:, ka.size:]
+        w = 1.0 / (big + 1.0)
+        num += w * sx.sum(-1)
+        za[:, ka] += np.where(mx, (w * m / big)[:, None] * sx, 0.0)
+        zb[:, kb] += np.where(my, -(w * n / big)[:, None] * sy, 0.0)
         with np.errstate(invalid="ignore", divide="ignore"):
-            a_t = sx.sum(-1) / (n * m)
-        w = 1.0 / (n + m + 1.0)
-        num += w * (sx.sum(-1) - n * m / 2.0)
-        za += np.where(mx, w[:, None] * (sx - m[:, None] * a_t[:, None]), 0.0)
-        zb += np.where(my, w[:, None] * (sy - n[:, None] * a_t[:, None]), 0.0)
-        poi += a_t / strata
+            poi += (sx.sum(-1) + n * m / 2) / (n * m) / strata  # U / (n m), U = W - n (n + 1) / 2
     va, dfa = _cell_variance(za, x)
     vb, dfb = _cell_variance(zb, y)
     return num, va, vb, dfa, dfb, poi
@@ -341,15 +346,15 @@ def _clustered_parts(x: np.ndarray, y: np.ndarray):
 def _cell_variance(z: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """A cell's part of the variance from its clusters' contributions ``z [R, C]``, and its degrees of freedom: per
     group of clusters with runs in the same strata (:func:`_groups`: one group for complete shared clusters, one a
-    stratum for independent runs), ``C_g / (C_g - 1)`` times the sum of the group's squared contributions (each
-    group's contributions are centred within a stratum, so each loses one degree of freedom), and Welch-Satterthwaite's
-    degrees of freedom over the groups' parts. The groups are those of the data set's first resample's pattern of
+    stratum for independent runs), ``C_g / (C_g - 1)`` times the sum of the squared deviations of the group's
+    contributions from their mean, and Welch-Satterthwaite's degrees of freedom over the groups' parts. The groups are those of the data set's first resample's pattern of
     runs (resamples keep it: :func:`resample_clusters`)."""
     var = np.zeros(z.shape[0])
     parts = []
     for g in _groups(cells[0]):
         c = float(g.size)
-        part = c / (c - 1) * (z[:, g] ** 2).sum(-1) if c > 1 else np.full(z.shape[0], np.nan)
+        dev = z[:, g] - z[:, g].mean(-1, keepdims=True)
+        part = c / (c - 1) * (dev**2).sum(-1) if c > 1 else np.full(z.shape[0], np.nan)
         var = var + part
         parts.append((part, c - 1))
     with np.errstate(invalid="ignore", divide="ignore"):
