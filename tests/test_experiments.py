@@ -174,36 +174,89 @@ def test_the_pooled_improvement_interval_is_a_stratified_bootstrap():
     assert ci.low < ci.value < ci.high
 
 
+def _as_runs(cells: dict) -> dict:
+    return {k: dict(enumerate(np.asarray(v, float))) for k, v in cells.items()}
+
+
+#: one look at every run (a confirmatory design's), the sources shared: the test alone decides
+ONE_LOOK = design.design(role="confirmatory", runs={f"{m}/{s}": 20 for m in ("neat", "hyperneat")
+                                                    for s in design.PAPER_SETUPS})
+
+
 def test_the_pooled_verdicts_follow_the_test_over_the_whole_family():
     """report.pooled_tests on made-up cells: a clear effect the paper's way is supported, one against it
-    contradicted; Holm runs over the design's whole family (9 primary claims, the absent with p = 1); the
-    direction is the test's, z, even where the probability of improvement averaged over the targets points
-    the other way (a large target with a clear effect beside a small one against it)."""
+    contradicted; Holm runs over the design's whole family (9 primary claims, the absent with p = 1) of the
+    comparisons' sequential p-values; the direction is the test's, even where the probability of improvement
+    averaged over the targets points the other way (a large target with a clear effect beside a small one against
+    it)."""
     rng = np.random.default_rng(8)
     up = lambda n, shift: rng.normal(0.5 + shift, 0.05, n)  # noqa: E731
     cells = {("neat", "fitness", "4v3"): up(20, 0.2), ("neat", "none", "4v3"): up(20, 0.0),
              ("hyperneat", "novelty", "4v3"): up(20, -0.2), ("hyperneat", "fitness", "4v3"): up(20, 0.0),
              ("neat", "novelty", "4v3"): up(20, 0.01)}
-    res = {r["claim"].key: r for r in report.pooled_tests(cells)}
-    assert set(res) == {"neat/fitness > neat/none", "hyperneat/novelty > hyperneat/fitness",
-                        "neat/novelty > neat/none", "neat/novelty > neat/fitness",
-                        "hyperneat/fitness > neat/fitness", "hyperneat/novelty > neat/novelty"}
-    assert res["neat/fitness > neat/none"]["verdict"] == "supported"
-    assert res["hyperneat/novelty > hyperneat/fitness"]["verdict"] == "contradicted"
-    assert res["hyperneat/novelty > hyperneat/fitness"]["way"] == -1
-    p = [res[k]["test"].p for k in res]
-    want = stats.holm(p + [1.0] * (len(report.design.PRIMARY) - len(p)))[:len(p)]
-    np.testing.assert_allclose([res[k]["holm"] for k in res], want)
-    assert all(r["level"] == report.design.ALPHA / 9 for r in res.values())
-    assert res["neat/fitness > neat/none"]["power"] > 0.8 and res["neat/fitness > neat/none"]["needed"] <= 10
-    # the paper's way by z in a big target, against it by P averaged over a big and a tiny target
-    # 4v3: 30 against 30, P(a > b) = 0.82; 5v3: 3 against 3, P = 0: averaged 0.41, but z = +3.5 (p = 0.0004)
+    for dsg in (design.design(), ONE_LOOK):
+        res = {r["claim"].key: r for r in report.pooled_tests(_as_runs(cells), dsg)}
+        assert set(res) == {"neat/fitness > neat/none", "hyperneat/novelty > hyperneat/fitness",
+                            "neat/novelty > neat/none", "neat/novelty > neat/fitness",
+                            "hyperneat/fitness > neat/fitness", "hyperneat/novelty > neat/novelty"}
+        assert res["neat/fitness > neat/none"]["verdict"] == "supported"
+        assert res["hyperneat/novelty > hyperneat/fitness"]["verdict"] == "contradicted"
+        assert res["hyperneat/novelty > hyperneat/fitness"]["way"] == -1
+        p = [res[k]["seq_p"] for k in res]
+        want = stats.holm(p + [1.0] * (len(report.design.PRIMARY) - len(p)))[:len(p)]
+        np.testing.assert_allclose([res[k]["holm"] for k in res], want)
+        assert all(r["level"] == report.design.ALPHA / 9 for r in res.values())
+        assert res["neat/fitness > neat/none"]["power"] > 0.8 and res["neat/fitness > neat/none"]["needed"] <= 10
+        for r in res.values():  # the pooled test is the clustered one, at the comparison's last look
+            a = report._matrix(_as_runs(cells), r["claim"].a, r["targets"], dsg)
+            b = report._matrix(_as_runs(cells), r["claim"].b, r["targets"], dsg)
+            assert r["test"] == stats.clustered_van_elteren(a, b)
+    # one look at t = 1: the sequential p is the test's own; 20 runs under the exploratory plan: its first look,
+    # at 20 of 35, reads the stricter first boundary
+    one = {r["claim"].key: r for r in report.pooled_tests(_as_runs(cells), ONE_LOOK)}
+    two = {r["claim"].key: r for r in report.pooled_tests(_as_runs(cells), design.design())}
+    for k, r in one.items():
+        assert r["seq_p"] == pytest.approx(r["test"].p, rel=1e-3, abs=1e-9)
+        assert two[k]["seq_p"] >= r["seq_p"] and len(two[k]["tests"]) == 1
+    # the paper's way by the statistic in a big target, against it by P averaged over a big and a tiny target
+    # 4v3: 30 against 30, P(a > b) = 0.82; 5v3: 3 against 3, P = 0: averaged 0.41, but t = +3.6 (p = 0.0007)
     cells = {("neat", "fitness", "4v3"): np.arange(30) / 30 + 0.4, ("neat", "none", "4v3"): np.arange(30) / 30,
              ("neat", "fitness", "5v3"): np.array([0.1, 0.11, 0.12]),
              ("neat", "none", "5v3"): np.array([0.9, 0.91, 0.92])}
-    r = next(r for r in report.pooled_tests(cells) if r["claim"].key == "neat/fitness > neat/none")
+    r = next(r for r in report.pooled_tests(_as_runs(cells), ONE_LOOK) if r["claim"].key == "neat/fitness > neat/none")
     assert r["test"].z > 3 and r["test"].poi.value < 0.5 and r["way"] == 1
-    assert r["holm"] == pytest.approx(9 * r["test"].p) and r["verdict"] == "supported"
+    assert r["holm"] == pytest.approx(9 * r["seq_p"]) and r["verdict"] == "supported"
+
+
+def test_the_pooled_verdicts_never_go_back_to_van_elteren_with_independent_strata():
+    """Transfer runs whose targets move together (one source each): van Elteren's test, the targets as independent
+    strata, finds a difference the clustered test does not, and the report's verdict is the clustered test's."""
+    rng = np.random.default_rng(9)
+    source = rng.normal(0, 0.08, 20)  # each source's quality carries to its three targets
+    noise = {t: rng.normal(0, 0.02, 20) for t in t3.TARGETS}
+    base = {("neat", "none", t): rng.normal(0.5, 0.08, 20) for t in t3.TARGETS}
+    for shift in np.arange(0.0, 0.15, 0.002):  # the smallest shift van Elteren's test calls significant
+        cells = base | {("neat", "fitness", t): 0.5 + shift + source + noise[t] for t in t3.TARGETS}
+        old = report.first_kind_verdicts(_as_runs(cells))["neat/fitness > neat/none"]
+        if old[0] == "supported":
+            break
+    assert old[0] == "supported" and old[1] < 0.05
+    r = next(r for r in report.pooled_tests(_as_runs(cells), ONE_LOOK, power=False)
+             if r["claim"].key == "neat/fitness > neat/none")
+    assert r["verdict"] == "not decided" and r["holm"] > 0.05 and r["test"].clusters == (20, 60)
+
+
+def test_a_comparison_inside_the_margin_is_no_meaningful_difference_and_a_wide_one_not_decided():
+    rng = np.random.default_rng(10)
+    same = {(m, s, t): rng.normal(0.5, 0.05, 150) for m in ("neat",) for s in ("none", "fitness") for t in t3.TARGETS}
+    few = {(m, s, t): rng.normal(0.5, 0.05, 8) for m in ("neat",) for s in ("none", "fitness") for t in t3.TARGETS}
+    dsg = design.design(role="confirmatory", sources="per_target", runs={"neat/none": 150, "neat/fitness": 150})
+    for cells, want in ((same, "no meaningful difference"), (few, "not decided")):
+        r = next(r for r in report.pooled_tests(_as_runs(cells), dsg, power=False)
+                 if r["claim"].key == "neat/fitness > neat/none")
+        ci = r["test"].poi
+        assert r["verdict"] == want and r["holm"] >= 0.05
+        assert (design.MARGIN[0] <= ci.low and ci.high <= design.MARGIN[1]) == (want == "no meaningful difference")
 
 
 # ------------------------------------------------------------------------------------------------- protocol
@@ -712,7 +765,7 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
     assert cells[3]["claims"] == ["hyperneat/fitness > hyperneat/none", "hyperneat/novelty > hyperneat/none",
                                   "hyperneat/none > neat/none"]
     assert report.extended_cells(rows, runs=3) == []
-    assert report._extended([r for r in rows if r["method"] == "neat" and int(r["run"]) < 20]) == []  # 20 a cell
+    assert report._extended([r for r in rows if r["method"] == "neat" and int(r["run"]) < 20], design.design()) == []
 
 
 def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_path):

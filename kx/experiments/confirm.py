@@ -69,7 +69,8 @@ def derive(basis: pathlib.Path, log: Callable[[str], None] = print) -> dict:
             ind = [stats.cluster_matrix([cells[(*c, t)] for t in targets], False) for c in (claim.a, claim.b)]
             test = stats.clustered_van_elteren(*obs)
             way = int(np.sign(test.z))
-            needed = stats.clustered_runs_needed(*ind, level, design.POWER_GOAL, CANDIDATES, direction=way) if way else None
+            needed = (stats.clustered_runs_needed(*ind, level, design.POWER_GOAL, CANDIDATES, direction=way)
+                      if way else None)
             at_most = stats.clustered_power(*ind, level, runs=design.CONFIRMATORY_MOST, direction=way) if way else 0.0
             record[measure][claim.key] = {"direction": way, "poi": round(test.poi.value, 4), "runs_needed": needed,
                                           "power_at_most": round(at_most, 4)}

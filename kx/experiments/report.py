@@ -12,7 +12,7 @@ import pathlib
 
 import numpy as np
 
-from kx.experiments import design, stats
+from kx.experiments import design, sequential, stats
 from kx.experiments import table3 as t3
 
 #: The paper's Table 3 (mean (sd) over 20 runs, portion of the maximum hold time; SPEC section 6).
@@ -182,36 +182,134 @@ def efficiency(rows: list[dict]) -> list[tuple]:
     return out
 
 
-def _strata(cells: dict, claim) -> tuple[list[str], list, list]:
-    """The targets where both cells of ``claim`` have runs, and their samples."""
-    targets = [t for t in t3.TARGETS if (*claim.a, t) in cells and (*claim.b, t) in cells]
-    return targets, [cells[(*claim.a, t)] for t in targets], [cells[(*claim.b, t)] for t in targets]
+def _runs(rows: list[dict], measure: str) -> dict:
+    """``{(method, setup, target): {run index: value}}`` of the target rows on ``measure``."""
+    out: dict = collections.defaultdict(dict)
+    for r in rows:
+        if r["phase"] == "target":
+            out[(r["method"], r["setup"], r["target"])][int(r["run"])] = float(r[measure])
+    return dict(out)
 
 
-def pooled_tests(cells: dict) -> list[dict]:
-    """Every claim of :data:`kx.experiments.design.CLAIMS` with runs in both its cells in some target: the
-    pooled test (:func:`stats.van_elteren`), Holm's correction over its whole family as the design fixes it
-    (a claim without runs yet counts with p = 1, so a partial folder is corrected as the whole protocol
-    will be), the power in the observed direction at ALPHA / the family's size, with these runs and the
-    runs a cell 80% would need, and the verdict: its direction is the test's (the sign of z)."""
+def _targets(runs: dict, claim) -> list[str]:
+    """The targets where both cells of ``claim`` have runs."""
+    return [t for t in t3.TARGETS if (*claim.a, t) in runs and (*claim.b, t) in runs]
+
+
+def _matrix(runs: dict, cell: tuple, targets: list[str], dsg: dict, upto: int | None = None) -> np.ndarray:
+    """A cell as clusters x targets (:func:`stats.cluster_matrix`): the runs of a transfer cell share their source
+    across the targets where the design's sources are shared; ``upto``: only runs of index below it."""
+    shared = dsg["sources"] == "shared" and t3.SETUPS[cell[1]].source_objective is not None
+    return stats.cluster_matrix([{i: v for i, v in runs[(*cell, t)].items() if upto is None or i < upto}
+                                 for t in targets], shared)
+
+
+def looks_had(runs: dict, claim, targets: list[str], looks) -> list[int | None]:
+    """The looks of the plan ``looks`` (runs a cell, ascending) that ``claim``'s comparison had, as the run count
+    each reads (``None``: every run, at its last look): the first always; a later one where a cell of the
+    comparison holds runs past the look before."""
+    most = max(max(runs[(*c, t)]) + 1 for c in (claim.a, claim.b) for t in targets)
+    had = [0] + [k for k in range(1, len(looks)) if most > looks[k - 1]]
+    return [looks[k] for k in had[:-1]] + [None]
+
+
+def _exploratory_sets(runs, claim, targets, dsg):
+    """The data of each look ``claim`` had: ``[(a, b)]`` matrices, and the plan's information fractions."""
+    looks = dsg["looks"]
+    uptos = looks_had(runs, claim, targets, looks)
+    return ([(_matrix(runs, claim.a, targets, dsg, u), _matrix(runs, claim.b, targets, dsg, u)) for u in uptos],
+            sequential.fractions(looks))
+
+
+def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> list[dict]:
+    """Every claim of :data:`kx.experiments.design.CLAIMS` with runs in both its cells in some target, under the
+    design ``dsg`` (default: the exploratory design with shared sources): the pooled test at each look the
+    comparison had (:func:`stats.clustered_van_elteren`, clusters the runs that share a source), its sequential
+    p-value under the plan's looks (:func:`sequential.sequential_p`), Holm's correction over its whole family as the
+    design fixes it (a claim without runs yet counts with p = 1, so a partial folder is corrected as the whole
+    protocol will be), the power in the observed direction at ALPHA / the family's size with these runs and the
+    runs a cell 80% would need (``power``), and the verdict: supported or contradicted where the Holm p is below
+    ALPHA (the direction the sign of the last look's statistic); no meaningful difference where not, and the
+    interval of the averaged probability of improvement lies inside the design's margin; not decided otherwise."""
+    dsg = dsg or design.design()
+    margin = dsg["margin"]
     out = []
     for claims in (design.PRIMARY, design.SECONDARY):
         fam = []
         for claim in claims:
-            targets, a_by, b_by = _strata(cells, claim)
-            if targets:
-                fam.append(dict(claim=claim, targets=targets, a_by=a_by, b_by=b_by, test=stats.van_elteren(a_by, b_by)))
-        padded = [r["test"].p for r in fam] + [1.0] * (len(claims) - len(fam))
+            targets = _targets(runs, claim)
+            if not targets:
+                continue
+            if dsg["looks"] == "planned":
+                sets, fracs = [(_matrix(runs, claim.a, targets, dsg), _matrix(runs, claim.b, targets, dsg))], (1.0,)
+            else:
+                sets, fracs = _exploratory_sets(runs, claim, targets, dsg)
+            tests = [stats.clustered_van_elteren(a, b) for a, b in sets]
+            fam.append(dict(claim=claim, targets=targets, sets=sets, tests=tests, test=tests[-1],
+                            seq_p=sequential.sequential_p([t.z_equivalent for t in tests], fracs)))
+        padded = [r["seq_p"] for r in fam] + [1.0] * (len(claims) - len(fam))
         level = design.ALPHA / len(claims)
         for r, h in zip(fam, stats.holm(padded)):
             way = int(np.sign(r["test"].z))
-            r.update(holm=float(h), level=level, way=way,
-                     power=stats.power(r["a_by"], r["b_by"], level, direction=way) if way else 0.0,
-                     needed=stats.runs_needed(r["a_by"], r["b_by"], level, design.POWER_GOAL, design.POWER_RUNS,
-                                              direction=way) if way else None)
-            r["verdict"] = ("not decided" if r["holm"] >= design.ALPHA else "supported" if way > 0 else "contradicted")
+            a, b = r["sets"][-1]
+            r.update(holm=float(h), level=level, way=way)
+            if power:
+                r.update(power=stats.clustered_power(a, b, level, direction=way) if way else 0.0,
+                         needed=stats.clustered_runs_needed(a, b, level, design.POWER_GOAL, design.POWER_RUNS,
+                                                            direction=way) if way else None)
+            poi = r["test"].poi
+            inside = margin[0] <= poi.low and poi.high <= margin[1]
+            r["verdict"] = ("supported" if r["holm"] < design.ALPHA and way > 0 else
+                            "contradicted" if r["holm"] < design.ALPHA and way < 0 else
+                            "no meaningful difference" if inside else "not decided")
         out += fam
     return out
+
+
+def first_kind_verdicts(runs: dict) -> dict:
+    """The verdicts of the first design (van Elteren's test with independent strata, one look at every run, no
+    margin), ``{claim key: (verdict, Holm p)}``: what the report said before the correction."""
+    out = {}
+    for claims in (design.PRIMARY, design.SECONDARY):
+        fam = []
+        for claim in claims:
+            targets = _targets(runs, claim)
+            if targets:
+                vals = [[np.asarray([v for _, v in sorted(runs[(*c, t)].items())]) for t in targets]
+                        for c in (claim.a, claim.b)]
+                fam.append((claim, stats.van_elteren(*vals)))
+        padded = [t.p for _, t in fam] + [1.0] * (len(claims) - len(fam))
+        for (claim, t), h in zip(fam, stats.holm(padded)):
+            out[claim.key] = ("not decided" if h >= design.ALPHA else "supported" if t.z > 0 else "contradicted",
+                              float(h))
+    return out
+
+
+def _changes(runs: dict, results: list[dict], dsg: dict) -> list[str]:
+    """The verdicts the corrected design changes against the first one's, each with the step that changes it:
+    the clustered test alone (one look, no margin), then the looks paid for, then the margin."""
+    old = first_kind_verdicts(runs)
+    one_look = pooled_tests(runs, {**dsg, "looks": "planned", "margin": [0.5, 0.5]}, power=False)
+    looks = pooled_tests(runs, {**dsg, "margin": [0.5, 0.5]}, power=False)
+    steps = {r["claim"].key: r for r in one_look}, {r["claim"].key: r for r in looks}
+    lines = []
+    for r in results:
+        key = r["claim"].key
+        before = old[key][0]
+        if before == r["verdict"]:
+            continue
+        why = []
+        v1, v2 = steps[0][key]["verdict"], steps[1][key]["verdict"]
+        if v1 != before:
+            why.append(f"the clustered test: Holm p {_p(old[key][1])} -> {_p(steps[0][key]['holm'])}")
+        if v2 != v1:
+            why.append(f"the looks paid for: Holm p {_p(steps[0][key]['holm'])} -> {_p(steps[1][key]['holm'])}")
+        if r["verdict"] != v2:
+            why.append(f"the margin: P(a > b) [{_f(r['test'].poi.low, 2)}, {_f(r['test'].poi.high, 2)}] inside "
+                       f"[{dsg['margin'][0]:.2f}, {dsg['margin'][1]:.2f}]")
+        lines.append(f"| {_label(r['claim'])} | {r['claim'].family} | **{before}** | **{r['verdict']}** | "
+                     f"{'; '.join(why)} |")
+    return lines
 
 
 def _label(claim) -> str:
@@ -225,19 +323,25 @@ def _needed(r: dict) -> str:
     return f"> {design.POWER_RUNS[-1]}" if r["needed"] is None else str(r["needed"])
 
 
+VERDICTS = ("supported", "contradicted", "no meaningful difference", "not decided")
+
+
 def _pooled_table(results: list[dict], family: str) -> list[str]:
     rows = [r for r in results if r["claim"].family == family]
     if not rows:
         return ["No comparison of this family has runs in both its cells."]
-    lines = ["| comparison (a vs b) | targets | runs a cell | mean difference | P(a > b) [95% CI] | z | p | Holm p | "
-             "power now | runs a cell for 80% | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| comparison (a vs b) | targets | clusters | runs a cell | mean difference | P(a > b) [95% CI] | "
+             "t (df) | p | looks | sequential p | Holm p | power now | runs a cell for 80% | verdict |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         t, poi = r["test"], r["test"].poi
         counts = sorted(set(t.n_a + t.n_b))
         runs = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
-        lines.append(f"| {_label(r['claim'])} | {', '.join(r['targets'])} | {runs} | {t.diff:+.3f} | {poi.value:.2f} "
-                     f"[{_f(poi.low, 2)}, {_f(poi.high, 2)}] | {t.z:+.2f} | {_p(t.p)} | {_p(r['holm'])} | "
-                     f"{r['power']:.0%} | {_needed(r)} | **{r['verdict']}** |")
+        lines.append(f"| {_label(r['claim'])} | {', '.join(r['targets'])} | {t.clusters[0]}, {t.clusters[1]} | "
+                     f"{runs} | {t.diff:+.3f} | {poi.value:.2f} [{_f(poi.low, 2)}, {_f(poi.high, 2)}] | "
+                     f"{t.z:+.2f} ({t.df:.0f}) | "
+                     f"{_p(t.p)} | {len(r['tests'])} | {_p(r['seq_p'])} | {_p(r['holm'])} | {r['power']:.0%} | "
+                     f"{_needed(r)} | **{r['verdict']}** |")
     return lines
 
 
@@ -252,11 +356,8 @@ def _verdicts(by_measure: dict) -> list[str]:
                 lines.append(f"- {measure}: not measured in these runs.")
                 continue
             counts = collections.Counter(r["verdict"] for r in rs)
-            overall = ("supported" if counts["supported"] == len(rs) else
-                       "contradicted" if counts["contradicted"] == len(rs) else
-                       "not decided" if counts["not decided"] == len(rs) else
-                       ", ".join(f"{v} in {counts[v]}" for v in ("supported", "contradicted", "not decided")
-                                 if counts[v]) + f" of {len(rs)}")
+            overall = next((v for v in VERDICTS if counts[v] == len(rs)), None) or (
+                ", ".join(f"{v} in {counts[v]}" for v in VERDICTS if counts[v]) + f" of {len(rs)}")
             lines.append(f"- {measure}: **{overall}**.")
             for r in rs:
                 t = r["test"]
@@ -436,8 +537,10 @@ def extended_cells(rows: list[dict], runs: int = design.RUNS_PER_CELL) -> list[d
             for m, p, t, s in cells]
 
 
-def _extended(rows: list[dict]) -> list[str]:
-    cells = extended_cells(rows)
+def _extended(rows: list[dict], dsg: dict) -> list[str]:
+    if dsg["looks"] == "planned":
+        return []
+    cells = extended_cells(rows, dsg["looks"][0])
     if not cells:
         return []
     targets = [c for c in cells if c["phase"] == "target"]
@@ -446,20 +549,90 @@ def _extended(rows: list[dict]) -> list[str]:
         by_cell[c["method"], c["setup"], c["runs"]].append(c["target"])
     sources = [c for c in cells if c["phase"] == "source"]
     claims = list(dict.fromkeys(k for c in targets for k in c["claims"]))
-    text = (f"**Extended cells.** Past the protocol's {design.RUNS_PER_CELL} runs a cell (up to "
-            f"{design.EXTEND_UP_TO}, where the power figure at {design.RUNS_PER_CELL} runs could not decide a primary "
-            "comparison): " + "; ".join(f"{METHOD_NAMES[m]} {t3.SETUPS[s].label} in {', '.join(ts)} ({n} runs)"
-                                        for (m, s, n), ts in by_cell.items()))
+    text = (f"**Extended cells.** Past the protocol's {dsg['looks'][0]} runs a cell (up to {dsg['looks'][-1]}, where "
+            f"the power figure at {dsg['looks'][0]} runs could not decide a primary comparison): "
+            + "; ".join(f"{METHOD_NAMES[m]} {t3.SETUPS[s].label} in {', '.join(ts)} ({n} runs)"
+                        for (m, s, n), ts in by_cell.items()))
     if sources:
         text += ("; with the sources of their transfer runs ("
                  + ", ".join(f"{METHOD_NAMES[c['method']]} {c['setup']} {c['target']}: {c['runs']}" for c in sources)
                  + ")")
     if claims:
         labels = {c.key: _label(c) for c in design.PRIMARY}
-        text += (f". They enter the primary comparisons {'; '.join(labels[k] for k in claims)}, whose tests here "
-                 f"are a second look at these cells after the one at {design.RUNS_PER_CELL} runs; their p-values "
-                 "are not adjusted for it")
+        text += (f". They enter the primary comparisons {'; '.join(labels[k] for k in claims)}, whose tests here are "
+                 f"a second look at these cells after the one at {dsg['looks'][0]} runs, paid for by the sequential "
+                 "plan")
     return [text + ".", ""]
+
+
+def _design_text(dsg: dict) -> str:
+    """The paragraph that says how the claims are decided under the design ``dsg``."""
+    text = ("Decided by the design recorded in protocol.json (`kx/experiments/design.py`): each comparison pooled over "
+            "the targets that have runs of both its cells by van Elteren's stratified rank-sum statistic with a "
+            "cluster-robust variance (`kx.experiments.stats.clustered_van_elteren`), ")
+    text += ("whose clusters are the runs that share a source: run i of a transfer cell in every target descends from "
+             "source i, so its three targets are one cluster, and a no-transfer run is a cluster of its own; "
+             if dsg["sources"] == "shared" else
+             "each target run trained from a source of its own, so every run is a cluster of its own; ")
+    text += "Holm's correction within the paper's own comparisons (the primary family) per measure. "
+    if dsg["looks"] == "planned":
+        text += "One look, when every cell holds its planned runs (fixed in advance). "
+    else:
+        text += (f"The looks are paid for by a group-sequential plan (`kx/experiments/sequential.py`): looks at "
+                 f"{' and '.join(str(v) for v in dsg['looks'])} runs a cell, O'Brien-Fleming-type alpha spending "
+                 f"(Lan & DeMets 1983), each comparison decided at the last look it had by its sequential p-value, "
+                 f"which Holm's step-down takes (Maurer & Bretz 2013). ")
+    if dsg.get("corrected_after_runs"):
+        text += "This plan and the clustered test were applied after the fact to the runs already made. "
+    text += (f"*Supported*: significant the paper's way; *contradicted*: significant against it; *no meaningful "
+             f"difference*: not significant, and the 95% interval of P(a > b) inside the margin "
+             f"[{dsg['margin'][0]:.2f}, {dsg['margin'][1]:.2f}]; *not decided*: neither, with the estimate's direction "
+             f"and size, the power at the observed effect and the runs a cell 80% would need.")
+    return text
+
+
+def _changes_section(changes: dict) -> list[str]:
+    if not any(changes.values()):
+        return ["**Against the first design** (van Elteren's test with the targets as independent strata, one look "
+                "at every run, no margin): no verdict differs.", ""]
+    lines = ["**Against the first design.** The verdicts that differ from what van Elteren's test with the targets as "
+             "independent strata, one look at every run and no margin gives on the same runs, each with the step "
+             "that changes it (the clustered test at one look, then the looks paid for, then the margin):", ""]
+    for measure, rows in changes.items():
+        if rows:
+            lines += [f"*{measure}*", "", "| comparison (a vs b) | family | first design | corrected | why |",
+                      "|---|---|---|---|---|"] + rows + [""]
+    return lines
+
+
+def _withheld(out: pathlib.Path, rows: list[dict], dsg: dict) -> pathlib.Path:
+    """The report of a confirmatory folder short of its planned runs: its design and progress, no result (the
+    design's one look is when every cell holds its runs)."""
+    have = collections.Counter((r["method"], r["setup"], r["target"]) for r in rows if r["phase"] == "target")
+    sources = sum(r["phase"] == "source" for r in rows)
+    planned = {k: v for k, v in dsg["runs"].items()}
+    md = ["# Table 3, confirmatory replication (kx): runs under way", "",
+          "Generated by `python -m kx.experiments report` from `results.csv` alone. The design (protocol.json, "
+          "committed before the first run) has one look, when every cell holds its planned runs: until then this "
+          "report shows no result, only the progress.", "",
+          _design_text(dsg), "",
+          "| cell | runs planned a target | " + " | ".join(t3.TARGETS) + " |", "|---|---|" + "---|" * len(t3.TARGETS)]
+    for key, n in planned.items():
+        m, s = key.split("/")
+        md.append(f"| {METHOD_NAMES[m]} {t3.SETUPS[s].label} | {n} | "
+                  + " | ".join(str(have[(m, s, t)]) for t in t3.TARGETS) + " |")
+    done = sum(min(have[(*k.split("/"), t)], n) for k, n in planned.items() for t in t3.TARGETS)
+    total = sum(planned.values()) * len(t3.TARGETS)
+    undecidable = dsg.get("basis", {}).get("not decidable at an affordable cost", [])
+    md += ["", f"{done} of {total} target runs and {sources} sources finished.", ""]
+    if undecidable:
+        md += ["Declared in advance not decidable at an affordable cost (80% power needs more than "
+               f"{dsg['most_runs']} runs a cell at the earlier folder's effect): " + "; ".join(undecidable) + ".", ""]
+    md += ["To go on (it resumes what is under way and skips what is done):", "", "```",
+           f"python -m kx.experiments confirm --out <this folder> --seed {rows[0]['protocol_seed']}", "```", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(md))
+    return path
 
 
 def _still_to_run(rows: list[dict]) -> list[str]:
@@ -506,6 +679,12 @@ def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
     return text + "."
 
 
+def complete(rows: list[dict], dsg: dict) -> bool:
+    """Whether every cell a confirmatory design plans holds its runs in every target."""
+    have = collections.Counter((r["method"], r["setup"], r["target"]) for r in rows if r["phase"] == "target")
+    return all(have[(*k.split("/"), t)] >= n for k, n in dsg["runs"].items() for t in t3.TARGETS)
+
+
 def write(out: str | pathlib.Path) -> pathlib.Path:
     """Writes ``out/report.md`` and its PNGs from ``out/results.csv``; returns the report's path."""
     out = pathlib.Path(out)
@@ -518,6 +697,9 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     first = rows[0]
     src = [r for r in rows if r["phase"] == "source"]
     tgt = [r for r in rows if r["phase"] == "target"]
+    dsg = design.of_folder(out)
+    if dsg["role"] == "confirmatory" and not complete(rows, dsg):
+        return _withheld(out, rows, dsg)
     md = ["# Table 3: policy transfer and novelty search in keep-away (kx)", "",
           f"Generated by `python -m kx.experiments report` from `results.csv` alone: {len(tgt)} target runs and "
           f"{len(src)} source runs, protocol seed {first['protocol_seed']}; every target run's validated champion "
@@ -532,10 +714,11 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     md += ["", "Fitness is the portion of the maximum episode length (4500 grid iterations) the keepers hold the ball. "
            "The paper's numbers come from another simulator (its fitness is seconds held over a cap): compare "
            "orderings and significance, not values.", ""]
-    pooled, details = {}, []
+    pooled, details, changes = {}, [], {}
     for measure, what in MEASURES.items():
         cells = _cells(rows, measure)
-        pooled[measure] = pooled_tests(cells)
+        pooled[measure] = pooled_tests(_runs(rows, measure), dsg)
+        changes[measure] = _changes(_runs(rows, measure), pooled[measure], dsg)
         md += [f"## Table 3 on {measure}", "", f"Mean (sd) over runs per cell, n its runs; {what}"
                + (" (the paper's values beside ours)." if measure == "max_fitness" else "."), ""]
         md += _table3(cells, targets, paper=(measure == "max_fitness")) + [""]
@@ -548,20 +731,19 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
                     "of improvement; its 95% CI by bootstrap. Holm's correction over this table's comparisons. The "
                     "claims are decided by the pooled tests above, not by these.", ""]
         details += lines + [""]
-    md += ["## The paper's claims on these runs", "",
-           "Decided by the design fixed before the runs (`kx/experiments/design.py`, recorded in protocol.json): "
-           "each comparison pooled over the targets that have runs of both its cells by van Elteren's stratified "
-           "rank-sum test, Holm's correction within the paper's own comparisons (the primary family) per measure. "
-           "*Supported*: significant the paper's way; *contradicted*: significant against it; *not decided*: "
-           "neither, with the estimate's direction and size, the power at the observed effect and the runs a cell "
-           "80% would need.", ""]
-    md += _extended(rows) + _verdicts(pooled) + _efficiency_claim(eff)
+    md += ["## The paper's claims on these runs", "", _design_text(dsg), ""]
+    md += _extended(rows, dsg) + _verdicts(pooled) + _efficiency_claim(eff)
+    md += _changes_section(changes)
     for measure in MEASURES:
         md += [f"### Primary family ({measure})", "",
-               f"P(a > b): the probability of improvement averaged over the targets, with its stratified-bootstrap 95% "
-               f"CI; z and p: van Elteren's test (its sign, the direction); Holm over the family the design fixes "
-               f"(claims without runs count with p = 1); power: the probability of p < {design.ALPHA} / (the "
-               f"family's size) in the observed direction, at the observed effect, resampling each cell's runs "
+               f"P(a > b): the probability of improvement averaged over the targets, with its 95% CI from a bootstrap "
+               f"of whole clusters ({dsg['cluster_resamples']} resamples); clusters: each cell's (runs sharing a "
+               f"source "
+               f"count once); t (df) and p: the clustered test at the comparison's last look (its sign, the "
+               f"direction); looks: how many of the plan's looks the comparison had; sequential p: the smallest level "
+               f"at which the plan rejects at one of them; Holm over the family the design fixes (claims without runs "
+               f"count with p = 1); power: the probability of p < {design.ALPHA} / (the family's size) in the "
+               f"observed direction, at the observed effect, resampling each cell's clusters "
                f"({stats.POWER_RESAMPLES} resamples), with these runs and with the runs a cell shown.", ""]
         md += _pooled_table(pooled[measure], "primary") + [""]
         md += [f"### Secondary family, exploratory ({measure})", "",
@@ -588,7 +770,8 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
            "sum of its generations' own times, both measured in the protocol's process (and divided among the "
            "local processes that shared the machine's cores).", ""]
     md += _throughput(rows)
-    md += ["", "## Still to run", ""] + _still_to_run(rows)
+    md += ["", "## Still to run", ""] + (["Nothing: every cell of the design holds its planned runs."]
+                                          if dsg["role"] == "confirmatory" else _still_to_run(rows))
     md += ["", "## Where kx differs from the paper", ""] + DIFFERENCES
     md += ["", "Statistics: scipy (Mann-Whitney U, bootstrap), statsmodels (Lilliefors, Holm). The `rliable` library "
            "does not install with kx's pinned stack (arch 7.2.0, which rliable 1.2.0 requires, fails to import "

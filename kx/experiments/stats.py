@@ -347,8 +347,8 @@ def _cell_variance(z: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.nda
     """A cell's part of the variance from its clusters' contributions ``z [R, C]``, and its degrees of freedom: per
     group of clusters with runs in the same strata (:func:`_groups`: one group for complete shared clusters, one a
     stratum for independent runs), ``C_g / (C_g - 1)`` times the sum of the squared deviations of the group's
-    contributions from their mean, and Welch-Satterthwaite's degrees of freedom over the groups' parts. The groups are those of the data set's first resample's pattern of
-    runs (resamples keep it: :func:`resample_clusters`)."""
+    contributions from their mean, and Welch-Satterthwaite's degrees of freedom over the groups' parts. The groups are
+    those of the first data set's pattern of runs (resamples keep it: :func:`resample_clusters`)."""
     var = np.zeros(z.shape[0])
     parts = []
     for g in _groups(cells[0]):
@@ -430,7 +430,8 @@ def _groups(cell: np.ndarray) -> list[np.ndarray]:
     return [np.asarray(v) for v in patterns.values()]
 
 
-def resample_clusters(cell: np.ndarray, rng: np.random.Generator, resamples: int, runs: int | None = None) -> np.ndarray:
+def resample_clusters(cell: np.ndarray, rng: np.random.Generator, resamples: int,
+                      runs: int | None = None) -> np.ndarray:
     """``[resamples, clusters, strata]``: the cell's clusters drawn with replacement within each group of
     :func:`_groups`, each group to its own size (``runs`` None) or to ``runs`` times its share of the largest group
     (``runs`` a stratum for independent runs, ``runs`` clusters for complete shared ones)."""
