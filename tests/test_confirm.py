@@ -9,10 +9,10 @@ import shutil
 import numpy as np
 import pytest
 
+from kx.evolve.errors import RunError
 from kx.experiments import __main__ as cli
 from kx.experiments import confirm, csvfile, design, report
 from kx.experiments import table3 as t3
-from kx.evolve.errors import RunError
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SMALL = ("population_size=12", "trials=2", "validation_trials=4", "sim.max_iterations=60", "checkpoint_every=1")
