@@ -195,6 +195,7 @@ def _equivalence_rate(rng, shift: float, n: int, sims: int) -> float:
     return hits / sims
 
 
+@pytest.mark.slow
 def test_no_meaningful_difference_is_found_where_it_should_be_and_nowhere_else():
     """At a true P(a > b) of 0.5 with 80 runs a cell the interval lies inside [0.40, 0.60] most of the time; at the
     margin's edge (0.60) and outside it (0.66) at most 5% of the time (the 95% interval: 2.5% a side)."""

@@ -36,7 +36,7 @@ import scipy.stats
 
 SPENDING = "obrien_fleming"
 #: the grid of the numerical integration (points over the continuation region of a look)
-GRID = 1601
+GRID = 401
 
 
 def spent(alpha: float, t: float) -> float:
