@@ -453,7 +453,7 @@ def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
     return names
 
 
-def _throughput(rows: list[dict]) -> list[str]:
+def _throughput(rows: list[dict], dsg: dict | None = None) -> list[str]:
     lines = ["| method | phase | runs | mean wall s per run | mean s per generation | runs per hour | "
              "ratio to the generations alone |", "|---|---|---|---|---|---|---|"]
     for m in t3.METHODS:
@@ -471,6 +471,8 @@ def _throughput(rows: list[dict]) -> list[str]:
     parts = ", ".join(f"{METHOD_NAMES[m]} {h:.1f} h" for m, h in hours.items() if h)
     measured = (f"Measured: the {len(rows)} runs here took **{total / 3600:.1f} hours** of wall time in all "
                 f"(each run's share of its group's; {parts}).")
+    if dsg is not None and dsg["role"] == "confirmatory":  # its plan is its own, not the full protocol's
+        return lines + ["", measured]
     return lines + ["", measured, "", full_protocol_estimate(rows)]
 
 
@@ -623,8 +625,30 @@ def _withheld(out: pathlib.Path, rows: list[dict], dsg: dict) -> pathlib.Path:
                   + " | ".join(str(have[(m, s, t)]) for t in t3.TARGETS) + " |")
     done = sum(min(have[(*k.split("/"), t)], n) for k, n in planned.items() for t in t3.TARGETS)
     total = sum(planned.values()) * len(t3.TARGETS)
+    transfer = sum(n for k, n in planned.items() if t3.SETUPS[k.split("/")[1]].source_objective) * len(t3.TARGETS)
     undecidable = dsg.get("basis", {}).get("not decidable at an affordable cost", [])
-    md += ["", f"{done} of {total} target runs and {sources} sources finished.", ""]
+    md += ["", f"{done} of {total} target runs and {sources} of {transfer} sources finished, in "
+           f"{sum(float(r['wall_seconds']) for r in rows) / 3600:.2f} hours of wall time (each run's share of its "
+           "group's).", ""]
+    # the rest at the mean wall time of the finished runs of the same method and phase
+    left: collections.Counter = collections.Counter()
+    for key, n in planned.items():
+        m, s = key.split("/")
+        for t in t3.TARGETS:
+            left[(m, "target")] += max(n - have[(m, s, t)], 0)
+            left[(m, "source")] += n if t3.SETUPS[s].source_objective else 0
+    for r in rows:
+        left[(r["method"], "source")] -= r["phase"] == "source"
+    rest, uncosted = 0.0, 0
+    for (m, phase), k in left.items():
+        walls = [float(r["wall_seconds"]) for r in rows if (r["method"], r["phase"]) == (m, phase)]
+        if k > 0 and walls:
+            rest += k * float(np.mean(walls))
+        elif k > 0:
+            uncosted += k
+    md += [f"The rest at the finished runs' mean wall time per method and phase: about {rest / 3600:.1f} hours one "
+           "after another" + (f", {uncosted} runs of a method and phase with none finished not counted" if uncosted
+                              else "") + ".", ""]
     if undecidable:
         md += ["Declared in advance not decidable at an affordable cost (80% power needs more than "
                f"{dsg['most_runs']} runs a cell at the earlier folder's effect): " + "; ".join(undecidable) + ".", ""]
@@ -769,7 +793,7 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
            "at their recorded times) against the "
            "sum of its generations' own times, both measured in the protocol's process (and divided among the "
            "local processes that shared the machine's cores).", ""]
-    md += _throughput(rows)
+    md += _throughput(rows, dsg)
     md += ["", "## Still to run", ""] + (["Nothing: every cell of the design holds its planned runs."]
                                           if dsg["role"] == "confirmatory" else _still_to_run(rows))
     md += ["", "## Where kx differs from the paper", ""] + DIFFERENCES
