@@ -3,6 +3,7 @@ by simulation on data shaped like the protocol's: three targets whose transfer r
 shared source (clusters), against independent runs or other clusters, at 20 and 35 runs a cell and unequal cells;
 null data resampled from docs/table3's own runs; and the group-sequential plan over its two looks."""
 
+import json
 import math
 import pathlib
 
@@ -270,3 +271,17 @@ def test_the_plans_overall_level_over_its_two_looks_holds():
     for _ in range(9):
         any_of_nine |= _looked(rng, 4000, 0.05 / 9)[0]
     assert any_of_nine.mean() <= 0.06, any_of_nine.mean()
+
+
+@pytest.mark.slow
+def test_docs_table3s_report_regenerates_byte_for_byte_under_the_corrected_design(tmp_path):
+    committed = ROOT / "docs" / "table3"
+    for name in ("results.csv", "protocol.json"):
+        (tmp_path / name).write_bytes((committed / name).read_bytes())
+    md = report.write(tmp_path).read_text()
+    for name in ("report.md", "progression.png", "test_champions.png"):
+        assert (tmp_path / name).read_bytes() == (committed / name).read_bytes(), name
+    assert "applied after the fact" in md and "**Against the first design.**" in md
+    recorded = json.loads((committed / "protocol.json").read_text())
+    assert recorded["design"]["test"] == design.TEST and recorded["design"]["looks"] == list(design.LOOKS)
+    assert "test" not in recorded["design_history"][0]["design"]  # the first design, kept

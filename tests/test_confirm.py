@@ -168,3 +168,14 @@ def test_a_tiny_confirmatory_protocol_trains_a_source_of_its_own_for_every_trans
     with pytest.raises(RunError, match="design: the statistical design recorded before the runs differs"):
         t3.run(out, p, specs, batch=16, design_record=design.design(role="confirmatory", sources="per_target",
                                                                      runs=runs | {"neat/none": 2}))
+
+
+def test_the_committed_confirmatory_report_regenerates_byte_for_byte(tmp_path):
+    committed = ROOT / "docs" / "table3_confirmatory"
+    for name in ("results.csv", "protocol.json"):
+        shutil.copy(committed / name, tmp_path)
+    report.write(tmp_path)
+    names = sorted(p.name for p in committed.iterdir() if p.suffix in (".md", ".png"))
+    assert "report.md" in names
+    for name in names:
+        assert (tmp_path / name).read_bytes() == (committed / name).read_bytes(), name

@@ -64,8 +64,7 @@ def boundaries(alpha: float, fracs: tuple[float, ...]) -> tuple[float, ...]:
     if any(b <= a for a, b in zip(fracs, fracs[1:])):
         raise ValueError(f"information fractions: allowed ascending, got {fracs}")
     out: list[float] = []
-    # the density of the score S = z sqrt(t) on a grid, over the region not yet crossed
-    grid = dens = None
+    grid = dens = None  # the density over the region not yet crossed (:func:`_continue`)
     prev_t, prev_spent = 0.0, 0.0
     for t in fracs:
         goal = spent(alpha, t) - prev_spent
@@ -82,15 +81,21 @@ def boundaries(alpha: float, fracs: tuple[float, ...]) -> tuple[float, ...]:
 
             c = float(scipy.optimize.brentq(crossing, 0.0, 40.0, xtol=1e-12))
         out.append(c)
-        b = c * math.sqrt(t)
-        new = np.linspace(-b, b, GRID)
-        if grid is None:
-            dens = scipy.stats.norm.pdf(new / math.sqrt(t)) / math.sqrt(t)
-        else:
-            sd = math.sqrt(t - prev_t)
-            dens = (_weights(grid) * dens * scipy.stats.norm.pdf((new[:, None] - grid[None, :]) / sd) / sd).sum(-1)
-        grid, prev_t, prev_spent = new, t, spent(alpha, t)
+        grid, dens = _continue(grid, dens, prev_t, t, c)
+        prev_t, prev_spent = t, spent(alpha, t)
     return tuple(out)
+
+
+def _continue(grid, dens, prev_t: float, t: float, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """The density of the score ``S = z sqrt(t)`` at look ``t`` on a grid over the region not crossed, ``|S| <
+    c sqrt(t)``: from the previous look's (``grid`` None: the first look) by the Brownian increment over ``t -
+    prev_t``."""
+    b = c * math.sqrt(t)
+    new = np.linspace(-b, b, GRID)
+    if grid is None:
+        return new, scipy.stats.norm.pdf(new / math.sqrt(t)) / math.sqrt(t)
+    sd = math.sqrt(t - prev_t)
+    return new, (_weights(grid) * dens * scipy.stats.norm.pdf((new[:, None] - grid[None, :]) / sd) / sd).sum(-1)
 
 
 def _weights(grid: np.ndarray) -> np.ndarray:
@@ -104,18 +109,11 @@ def _weights(grid: np.ndarray) -> np.ndarray:
 def crossing_probability(alpha: float, fracs: tuple[float, ...]) -> float:
     """The chance under the null of crossing a boundary of :func:`boundaries` at any look (``spent(alpha, t_K)``
     by construction; a check of the integration)."""
-    c = boundaries(alpha, tuple(fracs))
     grid = dens = None
     prev = 0.0
-    for t, ck in zip(fracs, c):
-        b = ck * math.sqrt(t)
-        new = np.linspace(-b, b, GRID)
-        if grid is None:
-            dens = scipy.stats.norm.pdf(new / math.sqrt(t)) / math.sqrt(t)
-        else:
-            sd = math.sqrt(t - prev)
-            dens = (_weights(grid) * dens * scipy.stats.norm.pdf((new[:, None] - grid[None, :]) / sd) / sd).sum(-1)
-        grid, prev = new, t
+    for t, c in zip(fracs, boundaries(alpha, tuple(fracs))):
+        grid, dens = _continue(grid, dens, prev, t, c)
+        prev = t
     return 1.0 - float(np.sum(_weights(grid) * dens))
 
 
