@@ -1,8 +1,12 @@
 """PPO on the keep-away environment (:mod:`kx.sim.gym`), purejaxrl-style: the whole training one jitted
 function of a key, vmapped over seeds at the call site.
 
-The network has NEAT's fixed layout: the 13 inputs in, an actor of 3 logits (hold, pass to the nearest
-teammate, to the second nearest) and a critic; flax for the network, optax for the optimiser (Adam with
+The network (``PPOConfig.network``) is either ``"mlp"``, on NEAT's fixed layout: the 13 inputs in, an actor of 3
+logits (hold, pass to the nearest teammate, to the second nearest) and a critic; or ``"entity"``, the size-invariant
+:class:`EntityActorCritic` on the holder's view as tokens (:mod:`kx.sim.entities`: self-attention over the holder,
+its teammates and the takers; a hold logit and one pass logit per teammate, for any team size). The run loop's
+method ``ppo`` trains the MLP; the entity network trains through :func:`make_train` and :func:`make_block` with
+:func:`environment`'s observation. Both use flax for the network, optax for the optimiser (Adam with
 gradient clipping, the learning rate annealed linearly to 0 if asked). The objective is PPO's clipped
 surrogate with generalised advantage estimation (Schulman et al. 2017; GAE: Schulman et al. 2016) over
 SMDP steps, a step from one decision of the holder to the next (its reward the share of the episode
@@ -46,6 +50,9 @@ class PPOConfig:
     lr: float = 2.5e-4
     anneal_lr: bool = True
     hidden: int = 64
+    network: str = "mlp"  # "mlp": ActorCritic on the fixed 13 inputs; "entity": EntityActorCritic on entity tokens
+    heads: int = 4  # the entity network's attention heads (hidden must be a multiple)
+    blocks: int = 1  # the entity network's attention blocks
     resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
@@ -57,6 +64,15 @@ class PPOConfig:
                              f"got {self.num_minibatches}")
         if not 1 <= self.resets <= self.num_envs:
             raise ValueError(f"resets: allowed an integer in [1, num_envs = {self.num_envs}], got {self.resets}")
+        if self.network not in NETWORKS:
+            raise ValueError(f"network: allowed {', '.join(NETWORKS)}, got {self.network!r}")
+        if self.network == "entity" and (self.heads < 1 or self.hidden % self.heads or self.blocks < 0):
+            raise ValueError(f"heads: allowed a divisor of hidden = {self.hidden} (blocks >= 0), got heads "
+                             f"{self.heads}, blocks {self.blocks}")
+
+
+#: the networks PPO trains, and the observation of the environment each reads (kx.sim.gym.KeepAway)
+NETWORKS = {"mlp": "fixed", "entity": "entities"}
 
 
 class ActorCritic(nn.Module):
@@ -72,6 +88,52 @@ class ActorCritic(nn.Module):
             return nn.Dense(out, kernel_init=nn.initializers.orthogonal(scale), name=f"{name}_{2}")(x)
 
         return mlp(obs, self.n_actions, 0.01, "actor"), mlp(obs, 1, 1.0, "critic")[..., 0]
+
+
+class EntityActorCritic(nn.Module):
+    """A size-invariant actor-critic on the holder's view as entity tokens (:mod:`kx.sim.entities`): each token
+    embedded by its kind's layer (holder, teammate, taker), ``blocks`` pre-norm blocks of self-attention over
+    all tokens and a tanh MLP, each with a residual (no position encoding: the tokens form a set, as in UPDeT and
+    TransfQMix), then the hold logit and the critic from the holder's token and one pass logit per teammate
+    from its own token. Equivariant to the order of teammates (their logits follow them), invariant to the order
+    of takers, for any number of either: ``obs`` a dict ``holder [..., 4]``, ``mates [..., M, 6]``, ``takers [...,
+    T, 4]``; returns logits ``[..., 1 + M]`` (hold, pass to teammate slot r) and the value ``[...]``."""
+
+    hidden: int = 64
+    heads: int = 4
+    blocks: int = 1
+
+    @nn.compact
+    def __call__(self, obs):
+        orth = nn.initializers.orthogonal
+        embed = lambda x, name: nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name=name)(x)  # noqa: E731
+        x = jnp.concatenate([embed(obs["holder"], "holder_in")[..., None, :], embed(obs["mates"], "mate_in"),
+                             embed(obs["takers"], "taker_in")], axis=-2)
+        for i in range(self.blocks):
+            y = nn.LayerNorm(name=f"norm_{i}_0")(x)
+            x = x + nn.MultiHeadDotProductAttention(num_heads=self.heads, name=f"attention_{i}")(y, y)
+            y = nn.LayerNorm(name=f"norm_{i}_1")(x)
+            y = nn.tanh(nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name=f"mlp_{i}_0")(y))
+            x = x + nn.Dense(self.hidden, kernel_init=orth(1.0), name=f"mlp_{i}_1")(y)
+        x = nn.LayerNorm(name="norm_out")(x)
+        m = obs["mates"].shape[-2]
+        hold = nn.Dense(1, kernel_init=orth(0.01), name="hold")(x[..., 0, :])
+        passes = nn.Dense(1, kernel_init=orth(0.01), name="pass")(x[..., 1:1 + m, :])[..., 0]
+        v = nn.tanh(nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name="critic_0")(x[..., 0, :]))
+        value = nn.Dense(1, kernel_init=orth(1.0), name="critic_1")(v)[..., 0]
+        return jnp.concatenate([hold, passes], axis=-1), value
+
+
+def network(cfg: PPOConfig) -> nn.Module:
+    """The actor-critic ``cfg.network`` names."""
+    if cfg.network == "entity":
+        return EntityActorCritic(hidden=cfg.hidden, heads=cfg.heads, blocks=cfg.blocks)
+    return ActorCritic(hidden=cfg.hidden)
+
+
+def environment(cfg: PPOConfig, config) -> gym.KeepAway:
+    """The environment of task ``config`` with the observation ``cfg.network`` reads."""
+    return gym.KeepAway(config, NETWORKS[cfg.network])
 
 
 #: the actor's layers in ``params["params"]``, input first (:class:`ActorCritic`)
@@ -151,7 +213,7 @@ class Learner(NamedTuple):
     params: Any  # the actor-critic's flax parameters
     opt_state: Any  # optax's state of the gradient clipping and Adam's moments
     env: gym.BatchState  # the num_envs episodes being played, batch-last
-    obs: jax.Array  # [num_envs, 13] their observations
+    obs: Any  # their observations: [num_envs, 13], or the entity tokens (kx.sim.entities.batch_first)
     returns: jax.Array  # [num_envs] each episode's return so far
     updates: jax.Array  # int32: updates done
     decisions: jax.Array  # int32: SMDP steps played
@@ -170,9 +232,9 @@ def init(key: jax.Array, cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAway
     """A fresh learner: the network's initial weights (or ``params``, e.g. a transfer source's), a fresh
     optimiser, ``num_envs`` new episodes."""
     k_init, k_reset = jax.random.split(key)
-    if params is None:
-        params = ActorCritic(hidden=cfg.hidden).init(k_init, jnp.zeros((env.observation_size,)))
     obs, env_state = env.reset_batch(k_reset, cfg.num_envs, env_params)
+    if params is None:
+        params = network(cfg).init(k_init, jax.tree.map(lambda a: a[0], obs))
     zero = jnp.zeros((), jnp.int32)
     return Learner(params=params, opt_state=optimiser(cfg).init(params), env=env_state, obs=obs,
                    returns=jnp.zeros((cfg.num_envs,), jnp.float32), updates=zero, decisions=zero, episodes=zero,
@@ -194,7 +256,7 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     SMDP steps of the ``num_envs`` episodes with the sampled policy (:class:`Transition` ``[T, N]``), the
     learner's episodes advanced, and what they did: episodes ended, the sum of their returns, episodes
     that shared a start, the world's iterations played."""
-    net = ActorCritic(hidden=cfg.hidden)
+    net = network(cfg)
 
     def env_step(carry, key):
         learner, ended, return_sum, shared, iterations = carry
@@ -224,7 +286,7 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     entropy (means over the minibatches), and of the rollout: the episodes that ended, the sum of their
     returns, the episodes that shared a start (:meth:`kx.sim.gym.KeepAway.step_batch`) and the world's
     iterations played."""
-    net = ActorCritic(hidden=cfg.hidden)
+    net = network(cfg)
     tx = optimiser(cfg)
     n_batch = cfg.num_envs * cfg.num_steps
     rollout = make_rollout(cfg, env, env_params)
@@ -320,7 +382,8 @@ def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, bl
     return run
 
 
-def greedy(params, obs, hidden: int = 64):
-    """The network's decision when evaluated: the argmax of its logits."""
-    logits, _ = ActorCritic(hidden=hidden).apply(params, obs)
+def greedy(params, obs, hidden: int = 64, cfg: PPOConfig | None = None):
+    """The network's decision when evaluated: the argmax of its logits (``cfg``'s network; default the MLP of
+    ``hidden`` units)."""
+    logits, _ = (network(cfg) if cfg is not None else ActorCritic(hidden=hidden)).apply(params, obs)
     return jnp.argmax(logits, axis=-1)

@@ -40,7 +40,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from kx.sim import env, observe
+from kx.sim import entities, env, observe
 from kx.sim.ops import pick
 from kx.sim.types import KeepAwayConfig, KeepAwayParams, Reason, State
 
@@ -53,11 +53,23 @@ class EnvState:
     noise_word: jax.Array  # uint32: the episode's kick noise (kx.sim.env.kick_noise)
 
 
-class KeepAway:
-    """The keep-away world of one task (``config``) as a gymnax-style environment."""
+OBSERVATIONS = ("fixed", "entities")
 
-    def __init__(self, config: KeepAwayConfig):
+
+class KeepAway:
+    """The keep-away world of one task (``config``) as a gymnax-style environment.
+
+    ``observation``: ``"fixed"``, the fixed layout's 13 inputs and its 3 actions (hold, pass to the nearest
+    teammate, to the second nearest), the same in every task; or ``"entities"``, the holder's view as tokens
+    (:func:`kx.sim.entities.tokens`: a dict of the holder's, each teammate's and each taker's features) and ``K``
+    actions (hold, pass to teammate slot ``a - 1``: :func:`kx.sim.entities.keeper_of`), whose sizes follow the
+    task."""
+
+    def __init__(self, config: KeepAwayConfig, observation: str = "fixed"):
+        if observation not in OBSERVATIONS:
+            raise ValueError(f"observation: allowed {', '.join(OBSERVATIONS)}, got {observation!r}")
         self.config = config  # at least 3 keepers (KeepAwayConfig's own check): every action has its keeper
+        self.kind = observation
 
     @property
     def default_params(self) -> KeepAwayParams:
@@ -65,13 +77,17 @@ class KeepAway:
 
     @property
     def num_actions(self) -> int:
-        return N_ACTIONS
+        return N_ACTIONS if self.kind == "fixed" else entities.n_actions(self.config)
 
     @property
     def observation_size(self) -> int:
+        if self.kind != "fixed":
+            raise ValueError("observation_size: the entity observation is a dict of tokens (kx.sim.entities)")
         return observe.n_inputs("fixed", self.config)
 
-    def observation(self, state: EnvState) -> jax.Array:
+    def observation(self, state: EnvState):
+        if self.kind == "entities":
+            return entities.tokens(state.world, self.config)
         return observe.fixed_obs(state.world, self.config)
 
     def reset(self, key: jax.Array, params: KeepAwayParams) -> tuple[jax.Array, EnvState]:
@@ -82,8 +98,13 @@ class KeepAway:
 
     def keeper_of(self, state: EnvState, action: jax.Array) -> jax.Array:
         """The keeper an action sends the ball to (the holder's own index: hold)."""
-        order = observe.teammate_order(state.world, self.config)
-        return order[jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32)]
+        return self._keeper(state.world, action)
+
+    def _keeper(self, world: State, action: jax.Array) -> jax.Array:
+        if self.kind == "entities":
+            return entities.keeper_of(action, world, self.config)
+        order = observe.teammate_order(world, self.config)
+        return pick(order, jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32))
 
     def step_env(self, key: jax.Array, state: EnvState, action: jax.Array,
                  params: KeepAwayParams) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
@@ -113,8 +134,11 @@ class KeepAway:
 
     # ------------------------------------------------------------------ many episodes, batch-last
 
-    def observation_batch(self, state: "BatchState") -> jax.Array:
-        """The observations ``[n, 13]`` of ``n`` batch-last episodes."""
+    def observation_batch(self, state: "BatchState"):
+        """The observations of ``n`` batch-last episodes, batch first: ``[n, 13]``, or the tokens of
+        :func:`kx.sim.entities.batch_first`."""
+        if self.kind == "entities":
+            return entities.batch_first(entities.tokens(state.world, self.config))
         return jnp.moveaxis(observe.fixed_obs(state.world, self.config), 0, -1)
 
     def reset_batch(self, key: jax.Array, n: int, params: KeepAwayParams) -> tuple[jax.Array, "BatchState"]:
@@ -139,8 +163,7 @@ class KeepAway:
         def flying(w):
             return (w.holder < 0) & ~w.done
 
-        order = observe.teammate_order(state.world, self.config)
-        world = iterate(state.world, pick(order, jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32)))
+        world = iterate(state.world, self._keeper(state.world, action))
 
         def body(w):
             moved = iterate(w, jnp.full_like(w.holder, -1))

@@ -41,8 +41,10 @@ from kx.sim import gym, observe
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
-#: the config fields of ``ppo``: PPOConfig's but ``updates`` and ``anneal_lr`` (the encoding's own fields beside)
-FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig) if f.name not in ("updates", "anneal_lr"))
+#: the config fields of ``ppo``: PPOConfig's but ``updates`` and ``anneal_lr`` (the encoding's own fields beside), and
+#: but the entity network's (this method trains the fixed layout's MLP)
+FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig)
+               if f.name not in ("updates", "anneal_lr", "network", "heads", "blocks"))  # the run loop's: the MLP
 
 
 @functools.lru_cache(maxsize=None)
