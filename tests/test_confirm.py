@@ -151,7 +151,7 @@ def test_a_tiny_confirmatory_protocol_trains_a_source_of_its_own_for_every_trans
                     sources="per_target")
     runs = {f"{m}/{s}": 1 for m in confirm.METHODS for s in confirm.SETUPS}
     dsg = design.design(role="confirmatory", sources="per_target", runs=runs)
-    t3._open(out, p)
+    t3.create_folder(out, p)
     design.check_folder(out, p, (t3.SOURCE_TASK, *t3.TARGETS), lambda s: None, dsg)
     specs = [s for s in confirm.specs(dsg, 0, 1) if s.method == "neat"]
     rows = t3.run(out, p, specs, batch=16, design_record=dsg, log=lambda s: None)

@@ -42,6 +42,11 @@ METHODS = {
     "ppo": ["--config", "configs/ppo_3v2.py", "--config.ppo.episodes_per_generation=48", "--config.ppo.num_envs=16",
             "--config.ppo.num_steps=16", "--config.ppo.hidden=16", "--config.ppo.resets=4",
             "--config.ppo.anneal_episodes=288", *COMMON],
+    # PPO on the entity network (size-invariant): the same budget
+    "ppo_entity": ["--config", "configs/ppo_entity_3v2.py", "--config.ppo_entity.episodes_per_generation=48",
+                   "--config.ppo_entity.num_envs=16", "--config.ppo_entity.num_steps=16",
+                   "--config.ppo_entity.hidden=16", "--config.ppo_entity.resets=4",
+                   "--config.ppo_entity.anneal_episodes=288", *COMMON],
 }
 NEAT_LEARNERS = ("neat", "hyperneat")  # NEAT's own metrics and genome checks
 

@@ -1,7 +1,7 @@
 """The registry of encodings: which :class:`~kx.evolve.encoding.Encoding` runs ``method = <name>``.
 
-The built-in encodings (:mod:`kx.evolve.encodings`: ``neat``, ``hyperneat``, ``cma_es``, ``ppo``) are registered
-the first time the registry is asked (:func:`get`, :func:`names`); another one is a class and
+The built-in encodings (:mod:`kx.evolve.encodings`: ``neat``, ``hyperneat``, ``cma_es``, ``ppo``, ``ppo_entity``) are
+registered the first time the registry is asked (:func:`get`, :func:`names`); another one is a class and
 ``register(cls)`` (``tests/test_run_loop.py`` trains one defined in the test file).
 """
 
@@ -11,7 +11,7 @@ from kx.evolve.encoding import Encoding
 
 ENCODINGS: dict[str, type[Encoding]] = {}
 
-BUILTIN = ("neat", "hyperneat", "cma_es", "ppo")
+BUILTIN = ("neat", "hyperneat", "cma_es", "ppo", "ppo_entity")
 
 
 def register(cls: type[Encoding]) -> type[Encoding]:
@@ -45,8 +45,8 @@ def load_builtin() -> None:
     from kx.evolve.encodings.cma_es import CMAESEncoding
     from kx.evolve.encodings.hyperneat import HyperNEATEncoding
     from kx.evolve.encodings.neat import NEATEncoding
-    from kx.evolve.encodings.ppo import PPOEncoding
+    from kx.evolve.encodings.ppo import EntityEncoding, PPOEncoding
 
-    for cls in (CMAESEncoding, NEATEncoding, HyperNEATEncoding, PPOEncoding):
+    for cls in (CMAESEncoding, NEATEncoding, HyperNEATEncoding, PPOEncoding, EntityEncoding):
         register(cls)
     _loaded = True

@@ -113,7 +113,7 @@ def open_folder(out: pathlib.Path, protocol: t3.Protocol, basis: pathlib.Path | 
         if have.get("design", {}).get("role") != "confirmatory":
             raise RunError(f"{path}: not a confirmatory protocol (its design's role is "
                            f"{have.get('design', {}).get('role', 'exploratory')!r}): use another --out")
-        t3._same_protocol(out, protocol)
+        t3.same_protocol(out, protocol)
         return have["design"]
     if basis is None:
         raise RunError(f"{out}: a new confirmatory folder derives its design from an earlier one: give --basis DIR")
@@ -121,7 +121,7 @@ def open_folder(out: pathlib.Path, protocol: t3.Protocol, basis: pathlib.Path | 
         raise RunError("sources: a confirmatory protocol gives each target run a source of its own (per_target)")
     derived = derive(basis, log)
     dsg = design.design(role="confirmatory", sources=protocol.sources, runs=derived["runs"], basis=derived["basis"])
-    t3._open(out, protocol)
+    t3.create_folder(out, protocol)
     design.check_folder(out, protocol, (t3.SOURCE_TASK, *t3.TARGETS), lambda s: None, dsg)
     log(f"kx confirm: {path} written with the design (runs a cell: "
         + ", ".join(f"{k} {v}" for k, v in dsg["runs"].items()) + ")")

@@ -250,7 +250,7 @@ def curve(row: dict, name: str) -> list[float]:
 
 # ------------------------------------------------------------------------------------------------ running
 
-def _same_protocol(out: pathlib.Path, protocol: Protocol) -> bool:
+def same_protocol(out: pathlib.Path, protocol: Protocol) -> bool:
     """Whether ``out`` already has a protocol.json; ``RunError`` with the differences when it holds another
     protocol. Writes nothing."""
     path = out / "protocol.json"
@@ -265,10 +265,10 @@ def _same_protocol(out: pathlib.Path, protocol: Protocol) -> bool:
     return True
 
 
-def _open(out: pathlib.Path, protocol: Protocol) -> bool:
+def create_folder(out: pathlib.Path, protocol: Protocol) -> bool:
     """Creates ``out`` with its protocol.json, or checks that an existing one is the same protocol; whether it
     created the file."""
-    if _same_protocol(out, protocol):
+    if same_protocol(out, protocol):
         return False
     out.mkdir(parents=True, exist_ok=True)
     run_outputs.write_json(out / "protocol.json", protocol.to_json())
@@ -516,7 +516,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     shard.barrier("table3 start")
     rows = read_results(results_path)
     recorded = {row_key(r): r for r in rows}
-    _same_protocol(out, protocol)
+    same_protocol(out, protocol)
     rebuild = missing_sources(out, protocol, specs, recorded)
     for src in rebuild:  # a recorded source must be the run its config gives now, before anything trains
         diff = differences(recorded[src.key], planned(protocol, src, out), PLANNED)
@@ -534,7 +534,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             raise RunError(f"{src.describe()}: its run directory {run_dir(out, src)} is not the run of its row in "
                            f"{results_path} ({'; '.join(diff)}): move it away to have it trained again and "
                            "checked; nothing was run")
-    created = _open(out, protocol) if shard.leader else False
+    created = create_folder(out, protocol) if shard.leader else False
     if shard.leader:
         design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), (lambda s: None) if created else log,
                             design_record)

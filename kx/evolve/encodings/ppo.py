@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -36,8 +37,8 @@ import numpy as np
 
 from kx import ppo
 from kx.evolve.encoding import Encoding
-from kx.evolve.errors import is_int, is_number, need
-from kx.sim import gym, observe
+from kx.evolve.errors import ConfigError, is_int, is_number, need
+from kx.sim import entities, observe
 from kx.sim.policies import Policy
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
@@ -71,14 +72,35 @@ def greedy_policy(sim: KeepAwayConfig, hidden: int) -> Policy:
 
 
 @functools.lru_cache(maxsize=None)
+def entity_policy(sim: KeepAwayConfig, cfg: ppo.PPOConfig) -> Policy:
+    """The entity network's greedy decision (:class:`kx.ppo.EntityActorCritic`) as a shared-table policy of the
+    evaluator: ``params.table`` the flax parameters of G networks (leading axis G), ``params.index [*B]`` each
+    lane's. Every lane applies its own row of the table to its own tokens, alone (the network vmapped over the
+    lanes), so that a run's evaluation in a batched group is bit for bit its evaluation alone; the argmax of its
+    logits is hold or a pass to a teammate (:func:`kx.sim.entities.keeper_of`)."""
+    net = ppo.network(cfg)
+
+    def apply(params, state, key):
+        lanes = state.holder.shape
+        n = math.prod(lanes)
+        tok = entities.tokens(state, sim)
+        flat = {k: jnp.moveaxis(v.reshape(v.shape[:v.ndim - len(lanes)] + (n,)), -1, 0) for k, v in tok.items()}
+        own = jax.tree.map(lambda a: a[params.index.reshape(n)], params.table)
+        logits, _ = jax.vmap(net.apply)(own, flat)
+        return entities.keeper_of(jnp.argmax(logits, axis=-1).reshape(lanes), state, sim)
+
+    return Policy(f"ppo-entity-h{cfg.hidden}-a{cfg.heads}x{cfg.blocks}", apply, shared=True)
+
+
+@functools.lru_cache(maxsize=None)
 def _block_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayParams, block: int, anneal: int):
     """The jitted block of updates of one shape, shared by the runs of a process."""
-    return jax.jit(ppo.make_block(cfg, gym.KeepAway(sim), sim_params, block, anneal))
+    return jax.jit(ppo.make_block(cfg, ppo.environment(cfg, sim), sim_params, block, anneal))
 
 
 @functools.lru_cache(maxsize=None)
 def _init_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayParams):
-    return jax.jit(lambda key, params: ppo.init(key, cfg, gym.KeepAway(sim), sim_params, params))
+    return jax.jit(lambda key, params: ppo.init(key, cfg, ppo.environment(cfg, sim), sim_params, params))
 
 
 _as_population = jax.jit(lambda params: jax.tree.map(lambda a: a[None], params))
@@ -108,37 +130,44 @@ class PPOEncoding(Encoding):
     def defaults(cls) -> dict:
         return {"population_size": 1}
 
+    #: the fields of the config section, and the network they build (``PPOConfig.network``)
+    fields: tuple[str, ...] = FIELDS
+    network = "mlp"
+
     def __init__(self, cfg, sim, sim_params):
         super().__init__(cfg, sim, sim_params)
-        c = cfg.ppo
-        need(cfg.objective == "fitness", "objective", "'fitness' for method 'ppo' (it learns from the episodes' "
-             "rewards; a novelty score needs a population)", cfg.objective)
+        c = cfg[self.section]
+        s = self.section
+        need(cfg.objective == "fitness", "objective", f"'fitness' for method '{self.name}' (it learns from the "
+             "episodes' rewards; a novelty score needs a population)", cfg.objective)
         for f in ("num_envs", "num_steps", "update_epochs", "num_minibatches", "hidden", "resets"):
-            need(is_int(c[f]) and 1 <= c[f] <= 1_000_000, f"ppo.{f}", "an integer in [1, 1000000]", c[f])
+            need(is_int(c[f]) and 1 <= c[f] <= 1_000_000, f"{s}.{f}", "an integer in [1, 1000000]", c[f])
         for f in ("gamma", "gae_lambda"):
-            need(is_number(c[f]) and 0.0 <= c[f] <= 1.0, f"ppo.{f}", "a number in [0, 1]", c[f])
+            need(is_number(c[f]) and 0.0 <= c[f] <= 1.0, f"{s}.{f}", "a number in [0, 1]", c[f])
         for f in ("clip_eps", "lr", "max_grad_norm", "reward_scale"):
-            need(is_number(c[f]) and c[f] > 0, f"ppo.{f}", "a number > 0", c[f])
+            need(is_number(c[f]) and c[f] > 0, f"{s}.{f}", "a number > 0", c[f])
         for f in ("ent_coef", "vf_coef"):
-            need(is_number(c[f]) and c[f] >= 0, f"ppo.{f}", "a number >= 0", c[f])
-        need(is_int(c.anneal_episodes) and c.anneal_episodes >= 0, "ppo.anneal_episodes",
+            need(is_number(c[f]) and c[f] >= 0, f"{s}.{f}", "a number >= 0", c[f])
+        need(is_int(c.anneal_episodes) and c.anneal_episodes >= 0, f"{s}.anneal_episodes",
              "an integer >= 0 (0: a constant learning rate)", c.anneal_episodes)
-        need(is_int(c.episodes_per_generation) and c.episodes_per_generation >= 1, "ppo.episodes_per_generation",
+        need(is_int(c.episodes_per_generation) and c.episodes_per_generation >= 1, f"{s}.episodes_per_generation",
              "an integer >= 1", c.episodes_per_generation)
-        need((c.num_envs * c.num_steps) % c.num_minibatches == 0, "ppo.num_minibatches",
+        need((c.num_envs * c.num_steps) % c.num_minibatches == 0, f"{s}.num_minibatches",
              f"a divisor of num_envs x num_steps = {c.num_envs * c.num_steps}", c.num_minibatches)
-        need(c.resets <= c.num_envs, "ppo.resets", f"an integer in [1, num_envs = {c.num_envs}]", c.resets)
-        self.ppo = ppo.PPOConfig(**{f: (float(c[f]) if isinstance(getattr(ppo.PPOConfig, f), float) else c[f])
-                                    for f in FIELDS})
+        need(c.resets <= c.num_envs, f"{s}.resets", f"an integer in [1, num_envs = {c.num_envs}]", c.resets)
+        try:
+            self.ppo = ppo.PPOConfig(network=self.network, **{
+                f: (float(c[f]) if isinstance(getattr(ppo.PPOConfig, f), float) else c[f]) for f in self.fields})
+        except ValueError as e:  # the entity network's heads and blocks
+            raise ConfigError(f"{s}.{e}") from None
         self.block = int(c.episodes_per_generation)
         self.anneal = int(c.anneal_episodes)
-        self.env = gym.KeepAway(sim)
 
     @classmethod
     def episodes_per_generation(cls, cfg) -> int:
         """The training episodes of a generation (``ppo.episodes_per_generation``); the greedy ones on the
         generation's training and validation states are not learned from."""
-        return int(cfg.ppo.episodes_per_generation)
+        return int(cfg[cls.section].episodes_per_generation)
 
     def init(self, key):
         return _init_program(self.ppo, self.sim, self.sim_params)(key, None)
@@ -174,9 +203,12 @@ class PPOEncoding(Encoding):
         if seeding == "half":
             out.append("seeding 'half': PPO carries one network, not a population; allowed 'population' (the "
                        "weights the source's training ended with) or 'champion' (its validated champion)")
-        if source.ppo.hidden != self.ppo.hidden:
-            out.append(f"the source's network has {source.ppo.hidden} hidden units a layer (ppo.hidden), this "
-                       f"run's {self.ppo.hidden}: they do not fit")
+        for f in ("hidden", "heads", "blocks"):
+            if getattr(source.ppo, f) != getattr(self.ppo, f):
+                out.append(f"the source's network has {f} {getattr(source.ppo, f)} ({self.section}.{f}), this "
+                           f"run's {getattr(self.ppo, f)}: they do not fit")
+        if source.ppo.network != self.ppo.network:
+            out.append(f"the source trained the {source.ppo.network} network, this run the {self.ppo.network} one")
         return out
 
     def transfer(self, key, source, state, seeding, order):
@@ -202,3 +234,39 @@ class PPOEncoding(Encoding):
     def progress(self, row) -> str:
         return f"train return {float(row['train_return']):.3f}, {int(row['updates'])} updates"
 
+
+
+class EntityEncoding(PPOEncoding):
+    """``method = "ppo_entity"``: PPO on the size-invariant entity network (:class:`kx.ppo.EntityActorCritic`: the
+    holder's view as tokens, self-attention over them, a hold logit and one pass logit per teammate), through the
+    same run loop, budget and metrics as ``ppo``. Its weights fit every task, so a run transfers to any team size
+    and its champion plays any task unchanged. Config section ``ppo_entity``: ``ppo``'s fields and the network's
+    ``heads`` (attention heads, a divisor of ``hidden``) and ``blocks`` (attention blocks)."""
+
+    name = "ppo_entity"
+    section = "ppo_entity"
+    fields = FIELDS + ("heads", "blocks")
+    network = "entity"
+
+    @classmethod
+    def default_config(cls) -> ml_collections.ConfigDict:
+        c = PPOEncoding.default_config()
+        d = ppo.PPOConfig()
+        c.heads, c.blocks = d.heads, d.blocks
+        return c
+
+    def __init__(self, cfg, sim, sim_params):
+        c = cfg[self.section]
+        for f in ("heads", "blocks"):
+            need(is_int(c[f]) and 1 <= c[f] <= 64, f"{self.section}.{f}", "an integer in [1, 64]", c[f])
+        super().__init__(cfg, sim, sim_params)
+
+    def policy_for(self, sim):
+        return entity_policy(sim, self.ppo)
+
+    def describe(self) -> str:
+        c = self.ppo
+        return (f"ppo_entity (entity tokens of the holder, {self.sim.n_keepers - 1} teammates and "
+                f"{self.sim.n_takers} takers; {c.blocks} self-attention block(s) of {c.heads} heads, {c.hidden} "
+                f"units; a hold logit and a pass logit per teammate; {c.num_envs} episodes x {c.num_steps} SMDP "
+                f"steps an update; {self.block} training episodes a generation)")

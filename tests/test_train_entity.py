@@ -1,0 +1,100 @@
+"""``python -m kx.train`` for PPO on the entity network (``method = "ppo_entity"``): a run resumed from a checkpoint
+ends bit for bit where the uninterrupted run does, the evaluator's decisions are the network's forward pass, the
+champion plays every team size unchanged, a transfer to a bigger team starts from the source's weights, and a
+batched group writes what each run writes alone (slow)."""
+
+import pathlib
+
+import jax
+import numpy as np
+import pytest
+from test_train import _runs, resume_here  # noqa: F401  (the session cache of trained runs it uses)
+
+from kx import ppo
+from kx.evolve import checkpoint as ckpt
+from kx.evolve import config as cfg_lib
+from kx.evolve import run as run_lib
+from kx.evolve.encodings import ppo as ppo_enc
+from kx.evolve.errors import ConfigError
+from kx.sim import entities, gym
+from kx.sim.policies import Shared
+from kx.sim.types import KeepAwayConfig, KeepAwayParams
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+TINY = ["trials=4", "sim.max_iterations=300", "validation_trials=20", "gif=false",
+        "ppo_entity.episodes_per_generation=32", "ppo_entity.num_envs=16", "ppo_entity.num_steps=16",
+        "ppo_entity.hidden=16", "ppo_entity.resets=4", "ppo_entity.anneal_episodes=0"]
+
+
+@pytest.fixture
+def trained(_runs):  # noqa: F811
+    return _runs("ppo_entity")
+
+
+def test_resuming_from_a_checkpoint_ends_bit_for_bit_where_the_uninterrupted_run_does(trained, tmp_path):
+    resume_here(trained, tmp_path)
+
+
+def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_size(trained):
+    """The champion's weights, as the evaluator plays them (each lane its own row of the table, alone), decide as
+    the trained network's forward pass on the same tokens does (argmax of its logits, to a keeper), in 3v2 and,
+    unchanged, in 4v3, 5v3 and 6v4; with two networks in the table each lane follows its own."""
+    run_dir = trained[0]
+    trainer = run_lib.Trainer(cfg_lib.read_run_config(run_dir / "config.json"))
+    _, state, _ = trainer.restore(run_dir, ckpt.steps(run_dir)[-1])
+    enc = trainer.encoding
+    champion, last = state.champion, state.learner.params
+    net = ppo.network(enc.ppo)
+    for k, t in ((3, 2), (4, 3), (5, 3), (6, 4)):
+        sim = KeepAwayConfig(n_keepers=k, n_takers=t)
+        _, starts = gym.KeepAway(sim).reset_batch(jax.random.key(k), 64, KeepAwayParams())
+        world = starts.world
+        policy = enc.policy_for(sim)
+        assert policy.shared
+        both = jax.tree.map(lambda a, b: np.stack([a, b]), champion, last)
+        index = jax.numpy.asarray(np.arange(64) % 2, jax.numpy.int32)
+        got = np.asarray(jax.jit(policy.apply)(Shared(both, index), world, None))
+        obs = entities.batch_first(entities.tokens(world, sim))
+        want = []
+        for params in (champion, last):
+            logits, _ = net.apply(params, obs)
+            want.append(np.asarray(entities.keeper_of(np.argmax(np.asarray(logits), -1), world, sim)))
+        np.testing.assert_array_equal(got, np.where(np.arange(64) % 2 == 0, want[0], want[1]))
+
+
+def test_a_transfer_to_a_bigger_team_starts_from_the_source_weights(trained):
+    src_dir = trained[0]
+    target = lambda *extra: cfg_lib.load(REPO / "configs" / "ppo_entity_6v4.py", [  # noqa: E731
+        *TINY, "generations=1", f"transfer.source={src_dir}", *extra])
+    trainer = run_lib.Trainer(target())
+    state = trainer.init()
+    src = trainer.source
+    for x, y in zip(jax.tree.leaves(state.learner.params), jax.tree.leaves(src.state.learner.params), strict=True):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+    assert state.learner.obs["mates"].shape == (16, 5, 6) and state.learner.obs["takers"].shape == (16, 4, 4)
+    row = trainer.step(state).row
+    assert row["train_episodes"] >= 32 and np.isfinite(row["champion_validation"])
+    for extra, why in ((["ppo_entity.heads=2"], "they do not fit"),
+                       (["ppo_entity.heads=3"], "heads: allowed a divisor"),
+                       (["ppo_entity.blocks=0"], r"ppo_entity.blocks: allowed an integer in \[1, 64\]")):
+        with pytest.raises(ConfigError, match=why):
+            run_lib.Trainer(target(*extra)).init()
+    # the fixed layout's PPO and the entity network do not fit each other
+    mlp = cfg_lib.load(REPO / "configs" / "ppo_6v4.py", ["trials=4", "generations=1", f"transfer.source={src_dir}"])
+    with pytest.raises(ConfigError):
+        run_lib.Trainer(mlp).init()
+    assert ppo_enc.EntityEncoding.episodes_per_generation(target()) == 32
+
+
+@pytest.mark.slow  # ~40 s: two runs as a group and alone
+def test_a_batched_group_of_entity_runs_writes_what_each_run_writes_alone(tmp_path):
+    from test_group import assert_same_run
+
+    from kx.evolve import group as group_lib
+
+    cfgs = [cfg_lib.load(REPO / "configs" / "ppo_entity_3v2.py", [*TINY, "generations=2", "checkpoint_every=1",
+                                                                  f"seed={s}"]) for s in (0, 5)]
+    group_lib.train_group(cfgs, [tmp_path / "group" / f"seed{c.seed}" for c in cfgs], log=lambda s: None)
+    for c in cfgs:
+        run_lib.train(c, tmp_path / "alone" / f"seed{c.seed}", log=lambda s: None)
+        assert_same_run(tmp_path / "group" / f"seed{c.seed}", tmp_path / "alone" / f"seed{c.seed}")
