@@ -53,6 +53,7 @@ class PPOConfig:
     network: str = "mlp"  # "mlp": ActorCritic on the fixed 13 inputs; "entity": EntityActorCritic on entity tokens
     heads: int = 4  # the entity network's attention heads (hidden must be a multiple)
     blocks: int = 1  # the entity network's attention blocks
+    mix: tuple[str, ...] = ()  # other tasks whose episodes join every batch ("4v3", ...): the entity network only
     resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
@@ -69,6 +70,14 @@ class PPOConfig:
         if self.network == "entity" and (self.heads < 1 or self.hidden % self.heads or self.blocks < 0):
             raise ValueError(f"heads: allowed a divisor of hidden = {self.hidden} (blocks >= 0), got heads "
                              f"{self.heads}, blocks {self.blocks}")
+        if self.mix:
+            tasks = 1 + len(self.mix)
+            if self.network != "entity":
+                raise ValueError(f"mix: allowed only with the entity network (the {self.network} network's inputs "
+                                 f"are one task's), got {self.mix}")
+            if self.num_envs % tasks or self.resets % tasks:
+                raise ValueError(f"mix: num_envs ({self.num_envs}) and resets ({self.resets}) must divide among the "
+                                 f"{tasks} tasks, got {self.mix}")
 
 
 #: the networks PPO trains, and the observation of the environment each reads (kx.sim.gym.KeepAway)
@@ -109,9 +118,15 @@ class EntityActorCritic(nn.Module):
         embed = lambda x, name: nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name=name)(x)  # noqa: E731
         x = jnp.concatenate([embed(obs["holder"], "holder_in")[..., None, :], embed(obs["mates"], "mate_in"),
                              embed(obs["takers"], "taker_in")], axis=-2)
+        mask = None
+        if "mate_mask" in obs:  # episodes of several team sizes, padded (mixed_tokens): absent entities attend to
+            # nothing and are attended by none, and no pass goes to an absent teammate
+            valid = jnp.concatenate([jnp.ones(obs["holder"].shape[:-1] + (1,), bool), obs["mate_mask"],
+                                     obs["taker_mask"]], axis=-1)
+            mask = nn.make_attention_mask(valid, valid)
         for i in range(self.blocks):
             y = nn.LayerNorm(name=f"norm_{i}_0")(x)
-            x = x + nn.MultiHeadDotProductAttention(num_heads=self.heads, name=f"attention_{i}")(y, y)
+            x = x + nn.MultiHeadDotProductAttention(num_heads=self.heads, name=f"attention_{i}")(y, y, mask=mask)
             y = nn.LayerNorm(name=f"norm_{i}_1")(x)
             y = nn.tanh(nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name=f"mlp_{i}_0")(y))
             x = x + nn.Dense(self.hidden, kernel_init=orth(1.0), name=f"mlp_{i}_1")(y)
@@ -119,6 +134,8 @@ class EntityActorCritic(nn.Module):
         m = obs["mates"].shape[-2]
         hold = nn.Dense(1, kernel_init=orth(0.01), name="hold")(x[..., 0, :])
         passes = nn.Dense(1, kernel_init=orth(0.01), name="pass")(x[..., 1:1 + m, :])[..., 0]
+        if "mate_mask" in obs:
+            passes = jnp.where(obs["mate_mask"], passes, ABSENT)
         v = nn.tanh(nn.Dense(self.hidden, kernel_init=orth(np.sqrt(2)), name="critic_0")(x[..., 0, :]))
         value = nn.Dense(1, kernel_init=orth(1.0), name="critic_1")(v)[..., 0]
         return jnp.concatenate([hold, passes], axis=-1), value
@@ -131,9 +148,64 @@ def network(cfg: PPOConfig) -> nn.Module:
     return ActorCritic(hidden=cfg.hidden)
 
 
-def environment(cfg: PPOConfig, config) -> gym.KeepAway:
-    """The environment of task ``config`` with the observation ``cfg.network`` reads."""
-    return gym.KeepAway(config, NETWORKS[cfg.network])
+#: the logit of a pass to an absent teammate (a padded slot of a smaller team): never sampled, never greedy
+ABSENT = -1e9
+
+
+def environment(cfg: PPOConfig, config):
+    """The environment of task ``config`` with the observation ``cfg.network`` reads; with ``cfg.mix``, a tuple of
+    it and one of each task of the mix (the same field, speeds and chasers), whose episodes share every batch."""
+    if not cfg.mix:
+        return gym.KeepAway(config, NETWORKS[cfg.network])
+    from kx.sim.types import KeepAwayConfig
+
+    others = tuple(KeepAwayConfig.from_task(t, field_size=config.field_size, agent_speed=config.agent_speed,
+                                            ball_speed=config.ball_speed, n_chasers=config.n_chasers)
+                   for t in cfg.mix)
+    return tuple(gym.KeepAway(c, NETWORKS[cfg.network]) for c in (config, *others))
+
+
+def mixed_tokens(obs: list[dict]) -> dict:
+    """Batch-first tokens of several team sizes (one dict a task) as one batch: teammates and takers padded with
+    zeros to the largest team's, ``mate_mask`` and ``taker_mask`` saying which are there, the tasks' episodes in
+    order."""
+    m = max(o["mates"].shape[1] for o in obs)
+    t = max(o["takers"].shape[1] for o in obs)
+
+    def pad(a, n):
+        return jnp.pad(a, ((0, 0), (0, n - a.shape[1]), (0, 0)))
+
+    def there(a, n):
+        return jnp.broadcast_to(jnp.arange(n) < a.shape[1], (a.shape[0], n))
+
+    return {"holder": jnp.concatenate([o["holder"] for o in obs]),
+            "mates": jnp.concatenate([pad(o["mates"], m) for o in obs]),
+            "takers": jnp.concatenate([pad(o["takers"], t) for o in obs]),
+            "mate_mask": jnp.concatenate([there(o["mates"], m) for o in obs]),
+            "taker_mask": jnp.concatenate([there(o["takers"], t) for o in obs])}
+
+
+def _reset(key, cfg: PPOConfig, env, env_params):
+    """The first ``num_envs`` episodes: of the one task, or split evenly among the mix's (each its own key)."""
+    if not isinstance(env, tuple):
+        return env.reset_batch(key, cfg.num_envs, env_params)
+    n = cfg.num_envs // len(env)
+    out = [e.reset_batch(k, n, env_params) for e, k in zip(env, jax.random.split(key, len(env)))]
+    return mixed_tokens([o for o, _ in out]), tuple(s for _, s in out)
+
+
+def _step(key, cfg: PPOConfig, env, state, action, env_params):
+    """``step_batch`` of the one task, or of each task of the mix on its share of the batch (``resets`` split
+    evenly): the observations as one batch (:func:`mixed_tokens`), rewards and ends in the batch's order."""
+    if not isinstance(env, tuple):
+        return env.step_batch(key, state, action, env_params, cfg.resets)
+    n = cfg.num_envs // len(env)
+    outs = [e.step_batch(k, s, action[i * n:(i + 1) * n], env_params, cfg.resets // len(env))
+            for i, (e, s, k) in enumerate(zip(env, state, jax.random.split(key, len(env))))]
+    info = {"iterations": jnp.concatenate([o[4]["iterations"] for o in outs]),
+            "shared_starts": sum(o[4]["shared_starts"] for o in outs)}
+    return (mixed_tokens([o[0] for o in outs]), tuple(o[1] for o in outs), jnp.concatenate([o[2] for o in outs]),
+            jnp.concatenate([o[3] for o in outs]), info)
 
 
 #: the actor's layers in ``params["params"]``, input first (:class:`ActorCritic`)
@@ -212,7 +284,7 @@ class Learner(NamedTuple):
 
     params: Any  # the actor-critic's flax parameters
     opt_state: Any  # optax's state of the gradient clipping and Adam's moments
-    env: gym.BatchState  # the num_envs episodes being played, batch-last
+    env: Any  # the num_envs episodes being played, batch-last (gym.BatchState; with a mix, one a task)
     obs: Any  # their observations: [num_envs, 13], or the entity tokens (kx.sim.entities.batch_first)
     returns: jax.Array  # [num_envs] each episode's return so far
     updates: jax.Array  # int32: updates done
@@ -232,7 +304,7 @@ def init(key: jax.Array, cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAway
     """A fresh learner: the network's initial weights (or ``params``, e.g. a transfer source's), a fresh
     optimiser, ``num_envs`` new episodes."""
     k_init, k_reset = jax.random.split(key)
-    obs, env_state = env.reset_batch(k_reset, cfg.num_envs, env_params)
+    obs, env_state = _reset(k_reset, cfg, env, env_params)
     if params is None:
         params = network(cfg).init(k_init, jax.tree.map(lambda a: a[0], obs))
     zero = jnp.zeros((), jnp.int32)
@@ -264,7 +336,7 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
         logits, value = net.apply(learner.params, learner.obs)
         action = jax.random.categorical(k_act, logits)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
-        obs2, env_state, reward, done, info = env.step_batch(k_env, learner.env, action, env_params, cfg.resets)
+        obs2, env_state, reward, done, info = _step(k_env, cfg, env, learner.env, action, env_params)
         returns = learner.returns + reward
         nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
         carry = (nxt, ended + done.sum(dtype=jnp.int32), return_sum + jnp.where(done, returns, 0.0).sum(),

@@ -139,3 +139,42 @@ def test_ppo_trains_the_entity_network_the_same_way_twice(k, t):
         ppo.PPOConfig(network="attention")
     with pytest.raises(ValueError, match="heads: allowed a divisor of hidden"):
         ppo.PPOConfig(network="entity", hidden=30, heads=4)
+
+
+def test_a_smaller_team_padded_among_a_bigger_ones_decides_as_it_does_alone():
+    """3v2 tokens padded to 4v3's sizes with their masks (mixed_tokens) give the 3v2 logits on the teammates that
+    are there, and a pass to an absent one is never sampled; the 4v3 episodes of the batch are untouched."""
+    net = ppo.EntityActorCritic(hidden=16, heads=2, blocks=2)
+    _, small = _net_and_obs(3, 2)
+    _, big = _net_and_obs(4, 3)
+    params = net.init(jax.random.key(0), jax.tree.map(lambda a: a[0], small))
+    params = jax.tree.map(lambda a: a * 50.0 if a.ndim == 2 and a.shape[-1] == 1 else a, params)
+    mixed = ppo.mixed_tokens([small, big])
+    assert mixed["mates"].shape == (16, 3, 6) and mixed["mate_mask"][:8].sum(axis=1).tolist() == [2] * 8
+    logits, value = net.apply(params, mixed)
+    alone_small, v_small = net.apply(params, small)
+    alone_big, v_big = net.apply(params, big)
+    np.testing.assert_allclose(logits[:8, :3], alone_small, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(value[:8], v_small, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(logits[8:], alone_big, rtol=1e-5, atol=1e-5)
+    assert np.all(np.asarray(logits[:8, 3]) == ppo.ABSENT)
+    draws = jax.random.categorical(jax.random.key(1), jnp.broadcast_to(logits[:8], (500, 8, 4)))
+    assert int(draws.max()) <= 2
+
+
+def test_ppo_trains_on_a_mix_of_team_sizes_in_every_batch():
+    cfg = ppo.PPOConfig(num_envs=16, num_steps=8, updates=2, network="entity", hidden=16, heads=2, mix=("4v3",),
+                        resets=4)
+    env = ppo.environment(cfg, KeepAwayConfig())
+    assert [e.config.name for e in env] == ["3v2", "4v3"]
+    train = jax.jit(ppo.make_train(cfg, env, KeepAwayParams()))
+    (a, m), (b, _) = train(jax.random.key(2)), train(jax.random.key(2))
+    for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)):
+        np.testing.assert_array_equal(x, y)
+    assert a.obs["mates"].shape == (16, 3, 6)
+    assert np.asarray(a.obs["mate_mask"]).sum(axis=1).tolist() == [2] * 8 + [3] * 8
+    assert [s.world.keeper_x.shape for s in a.env] == [(3, 8), (4, 8)] and int(m["episodes"].sum()) > 0
+    for bad, why in ((dict(network="mlp"), "mix: allowed only with the entity network"),
+                     (dict(network="entity", num_envs=15, resets=3), "must divide among the 2 tasks")):
+        with pytest.raises(ValueError, match=why):
+            ppo.PPOConfig(mix=("4v3",), **bad)

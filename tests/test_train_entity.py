@@ -98,3 +98,17 @@ def test_a_batched_group_of_entity_runs_writes_what_each_run_writes_alone(tmp_pa
     for c in cfgs:
         run_lib.train(c, tmp_path / "alone" / f"seed{c.seed}", log=lambda s: None)
         assert_same_run(tmp_path / "group" / f"seed{c.seed}", tmp_path / "alone" / f"seed{c.seed}")
+
+
+def test_a_run_on_a_mix_of_team_sizes_trains_through_the_run_loop_and_bad_mixes_are_refused():
+    cfg = lambda *extra: cfg_lib.load(REPO / "configs" / "ppo_entity_3v2.py", [*TINY, "generations=1", *extra])  # noqa: E731
+    trainer = run_lib.Trainer(cfg("ppo_entity.mix=4v3"))
+    assert "with 4v3 episodes in every batch" in trainer.encoding.describe()
+    state = trainer.init()
+    assert [s.world.keeper_x.shape[0] for s in state.learner.env] == [3, 4]
+    row = trainer.step(state).row
+    assert row["train_episodes"] >= 32 and np.isfinite(row["champion_validation"])
+    for bad, why in (("4x3", r"ppo_entity.mix: '4x3' is not a task"), ("3v2", "tasks other than the run's own"),
+                     ("4v3,5v3", "ppo_entity.mix: num_envs \\(16\\) and resets \\(4\\) must divide")):
+        with pytest.raises(ConfigError, match=why):
+            run_lib.Trainer(cfg(f"ppo_entity.mix={bad}"))

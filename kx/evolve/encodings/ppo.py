@@ -40,12 +40,12 @@ from kx.evolve.encoding import Encoding
 from kx.evolve.errors import ConfigError, is_int, is_number, need
 from kx.sim import entities, observe
 from kx.sim.policies import Policy
-from kx.sim.types import KeepAwayConfig, KeepAwayParams
+from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
 
 #: the config fields of ``ppo``: PPOConfig's but ``updates`` and ``anneal_lr`` (the encoding's own fields beside), and
 #: but the entity network's (this method trains the fixed layout's MLP)
 FIELDS = tuple(f.name for f in dataclasses.fields(ppo.PPOConfig)
-               if f.name not in ("updates", "anneal_lr", "network", "heads", "blocks"))  # the run loop's: the MLP
+               if f.name not in ("updates", "anneal_lr", "network", "heads", "blocks", "mix"))  # the MLP's
 
 
 @functools.lru_cache(maxsize=None)
@@ -155,13 +155,18 @@ class PPOEncoding(Encoding):
         need((c.num_envs * c.num_steps) % c.num_minibatches == 0, f"{s}.num_minibatches",
              f"a divisor of num_envs x num_steps = {c.num_envs * c.num_steps}", c.num_minibatches)
         need(c.resets <= c.num_envs, f"{s}.resets", f"an integer in [1, num_envs = {c.num_envs}]", c.resets)
+        mix = self._mix(c, sim)
         try:
-            self.ppo = ppo.PPOConfig(network=self.network, **{
+            self.ppo = ppo.PPOConfig(network=self.network, mix=mix, **{
                 f: (float(c[f]) if isinstance(getattr(ppo.PPOConfig, f), float) else c[f]) for f in self.fields})
-        except ValueError as e:  # the entity network's heads and blocks
+        except ValueError as e:  # the entity network's heads, blocks and mix
             raise ConfigError(f"{s}.{e}") from None
         self.block = int(c.episodes_per_generation)
         self.anneal = int(c.anneal_episodes)
+
+    def _mix(self, c, sim) -> tuple[str, ...]:
+        """The other tasks whose episodes join every batch (the entity network's ``mix``; none for the MLP)."""
+        return ()
 
     @classmethod
     def episodes_per_generation(cls, cfg) -> int:
@@ -241,7 +246,10 @@ class EntityEncoding(PPOEncoding):
     holder's view as tokens, self-attention over them, a hold logit and one pass logit per teammate), through the
     same run loop, budget and metrics as ``ppo``. Its weights fit every task, so a run transfers to any team size
     and its champion plays any task unchanged. Config section ``ppo_entity``: ``ppo``'s fields and the network's
-    ``heads`` (attention heads, a divisor of ``hidden``) and ``blocks`` (attention blocks)."""
+    ``heads`` (attention heads, a divisor of ``hidden``), ``blocks`` (attention blocks) and ``mix``: other tasks,
+    comma-separated (``"4v3"``, ``"4v3,5v3"``; empty: none), whose episodes share every batch with the run's own
+    task, ``num_envs`` and ``resets`` split evenly among them (:func:`kx.ppo.mixed_tokens`). The run's training
+    budget counts the episodes of every task; its generations are played and validated in its own task."""
 
     name = "ppo_entity"
     section = "ppo_entity"
@@ -252,8 +260,21 @@ class EntityEncoding(PPOEncoding):
     def default_config(cls) -> ml_collections.ConfigDict:
         c = PPOEncoding.default_config()
         d = ppo.PPOConfig()
-        c.heads, c.blocks = d.heads, d.blocks
+        c.heads, c.blocks, c.mix = d.heads, d.blocks, ""
         return c
+
+    def _mix(self, c, sim) -> tuple[str, ...]:
+        need(isinstance(c.mix, str), f"{self.section}.mix", "task names, comma-separated ('4v3,5v3'), or ''", c.mix)
+        tasks = tuple(t.strip() for t in c.mix.split(",") if t.strip())
+        for t in tasks:
+            try:
+                other = KeepAwayConfig.from_task(t, field_size=sim.field_size, agent_speed=sim.agent_speed,
+                                                 ball_speed=sim.ball_speed, n_chasers=sim.n_chasers)
+            except KeepAwayError as e:
+                raise ConfigError(f"{self.section}.mix: {t!r} is not a task of this world ({e})") from None
+            need(other != sim and tasks.count(t) == 1, f"{self.section}.mix",
+                 f"tasks other than the run's own ({sim.name}), each once", c.mix)
+        return tasks
 
     def __init__(self, cfg, sim, sim_params):
         c = cfg[self.section]
@@ -266,7 +287,8 @@ class EntityEncoding(PPOEncoding):
 
     def describe(self) -> str:
         c = self.ppo
+        mix = f", with {', '.join(c.mix)} episodes in every batch" if c.mix else ""
         return (f"ppo_entity (entity tokens of the holder, {self.sim.n_keepers - 1} teammates and "
                 f"{self.sim.n_takers} takers; {c.blocks} self-attention block(s) of {c.heads} heads, {c.hidden} "
                 f"units; a hold logit and a pass logit per teammate; {c.num_envs} episodes x {c.num_steps} SMDP "
-                f"steps an update; {self.block} training episodes a generation)")
+                f"steps an update{mix}; {self.block} training episodes a generation)")
