@@ -122,7 +122,7 @@ def test_the_entity_network_follows_its_teammates_ignores_the_takers_order_and_f
         np.testing.assert_allclose(v2, value, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("k,t", [(3, 2), (6, 4)])
+@pytest.mark.parametrize("k,t", [pytest.param(3, 2, marks=pytest.mark.slow), (6, 4)])
 def test_ppo_trains_the_entity_network_the_same_way_twice(k, t):
     cfg = ppo.PPOConfig(num_envs=16, num_steps=8, updates=2, network="entity", hidden=16, heads=2)
     env = ppo.environment(cfg, KeepAwayConfig(n_keepers=k, n_takers=t))

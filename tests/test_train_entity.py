@@ -62,6 +62,7 @@ def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_si
         np.testing.assert_array_equal(got, np.where(np.arange(64) % 2 == 0, want[0], want[1]))
 
 
+@pytest.mark.slow  # ~15 s: the run loop's transfer, which the default suite checks on NEAT and PPO
 def test_a_transfer_to_a_bigger_team_starts_from_the_source_weights(trained):
     src_dir = trained[0]
     target = lambda *extra: cfg_lib.load(REPO / "configs" / "ppo_entity_6v4.py", [  # noqa: E731
@@ -100,6 +101,7 @@ def test_a_batched_group_of_entity_runs_writes_what_each_run_writes_alone(tmp_pa
         assert_same_run(tmp_path / "group" / f"seed{c.seed}", tmp_path / "alone" / f"seed{c.seed}")
 
 
+@pytest.mark.slow  # ~20 s: test_entity.py trains on a mix in the default suite
 def test_a_run_on_a_mix_of_team_sizes_trains_through_the_run_loop_and_bad_mixes_are_refused():
     cfg = lambda *extra: cfg_lib.load(REPO / "configs" / "ppo_entity_3v2.py", [*TINY, "generations=1", *extra])  # noqa: E731
     trainer = run_lib.Trainer(cfg("ppo_entity.mix=4v3"))
