@@ -64,7 +64,7 @@ def run(args) -> None:
 
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py",
-               "PPO": "configs/ppo_3v2.py"}
+               "PPO": "configs/ppo_3v2.py", "PPO-entity": "configs/ppo_entity_3v2.py"}
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not chosen or any(m not in configs for m in chosen):
         raise SystemExit(f"--methods: allowed a comma-separated subset of {tuple(configs)}, got {args.methods!r}")
@@ -75,9 +75,10 @@ def run(args) -> None:
     keys = streams.test(LEARNING_TEST_SEED)
     starts = env.reset_batch(keys.starts, args.test_trials, params, sim)
     def budget(c):
-        if c.method == "ppo":
-            return (f"{c.ppo.episodes_per_generation} training episodes a generation, {c.generations} generations: "
-                    f"{c.ppo.episodes_per_generation * c.generations:,} episodes")
+        if c.method in ("ppo", "ppo_entity"):
+            per = c[c.method].episodes_per_generation
+            return (f"{per} training episodes a generation, {c.generations} generations: {per * c.generations:,} "
+                    "episodes")
         return (f"population {c.population_size}, {c.generations} generations, {c.trials} trials: "
                 f"{c.population_size * c.generations} evaluations, {c.population_size * c.generations * c.trials:,} "
                 "episodes")
@@ -131,8 +132,14 @@ def run(args) -> None:
         hyper, neat = mean["HyperNEAT"], mean["NEAT"]
         print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, "
               f"{hyper / neat:.2f}x NEAT)")
-    if "PPO" in mean and "NEAT" in mean:
-        print(f"PPO: {mean['PPO']:.4f} fitness ({mean['PPO'] / test['heuristic']:.1f}x the heuristic, "
-              f"{mean['PPO'] / mean['NEAT']:.2f}x NEAT)")
+    for name in ("PPO", "PPO-entity"):
+        if name in mean and "NEAT" in mean:
+            print(f"{name}: {mean[name]:.4f} fitness ({mean[name] / test['heuristic']:.1f}x the heuristic, "
+                  f"{mean[name] / mean['NEAT']:.2f}x NEAT)")
+            # wall time a run, the first (compiling) run of each left out where there are others
+            own, neat = (np.array(results[k][2][1:] or results[k][2]) for k in (name, "NEAT"))
+            print(f"{name}: {own.mean():.0f} s a run against NEAT's {neat.mean():.1f} s in this process (ratio "
+                  f"{own.mean() / neat.mean():.1f}; the first run of each, which compiles, left out where there are "
+                  "others)")
     if "NEAT" in mean and "CMA-ES" in mean:
         print(f"learning: {mean['NEAT']:.4f} fitness (ratio {mean['NEAT'] / mean['CMA-ES']:.2f} vs cma_es)")
