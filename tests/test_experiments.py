@@ -843,3 +843,18 @@ def test_a_tiny_ppo_protocol_runs_its_sources_and_targets_and_reports_neats_epis
     g, ev = eff[("ppo", "fitness")]
     assert g is None or ev == g * 24 + 48
     assert re.search(r"\| PPO: Fitness transfer vs No transfer \| 4v3 \| 2 \|", md)
+
+
+def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():
+    """Under the exploratory plan (looks at 20 and 35 runs a cell): a first look far past its boundary sets the
+    sequential p and the direction, even where the runs added later point the other way."""
+    rng = np.random.default_rng(12)
+    noise = lambda n: rng.normal(0, 0.01, n)  # noqa: E731
+    cells = {}
+    for t in t3.TARGETS:
+        cells[("neat", "none", t)] = np.concatenate([1.0 + noise(20), 0.0 + noise(15)])
+        cells[("neat", "none_novelty", t)] = np.concatenate([0.5 + noise(20), 2.0 + noise(15)])
+    r = next(r for r in report.pooled_tests(_as_runs(cells), design.design(), power=False)
+             if r["claim"].key == "neat/none_novelty > neat/none")
+    assert len(r["tests"]) == 2 and r["tests"][0].z < -5 and r["tests"][1].z > 0
+    assert r["way"] == -1 and r["verdict"] == "contradicted"

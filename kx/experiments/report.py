@@ -245,12 +245,17 @@ def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> lis
             else:
                 sets, fracs = _exploratory_sets(runs, claim, targets, dsg)
             tests = [stats.clustered_van_elteren(a, b) for a, b in sets]
+            z = [t.z_equivalent for t in tests]
+            # the direction: the sign at the look nearest to (or furthest past) its boundary, which sets the
+            # sequential p (the last look's, unless an earlier one decided)
+            bounds = sequential.boundaries(design.ALPHA, tuple(fracs))
+            decisive = max(range(len(z)), key=lambda k: (abs(z[k]) - bounds[k], k))
             fam.append(dict(claim=claim, targets=targets, sets=sets, tests=tests, test=tests[-1],
-                            seq_p=sequential.sequential_p([t.z_equivalent for t in tests], fracs)))
+                            seq_p=sequential.sequential_p(z, fracs), way=int(np.sign(tests[decisive].z))))
         padded = [r["seq_p"] for r in fam] + [1.0] * (len(claims) - len(fam))
         level = design.ALPHA / len(claims)
         for r, h in zip(fam, stats.holm(padded)):
-            way = int(np.sign(r["test"].z))
+            way = r["way"]
             a, b = r["sets"][-1]
             r.update(holm=float(h), level=level, way=way)
             if power:
