@@ -55,6 +55,14 @@ class PPOConfig:
     blocks: int = 1  # the entity network's attention blocks
     mix: tuple[str, ...] = ()  # other tasks whose episodes join every batch ("4v3", ...): the entity network only
     resets: int = 8  # start states drawn per step for the episodes that end in it (kx.sim.gym.step_batch)
+    max_minibatches: int = 0  # an epoch learns from at most this many of its minibatches, drawn at random (0: all):
+    # the rest of the rollout's steps are played (the budget is in episodes) but not learned from in that epoch
+    learn_per_episode: int = 0  # rollout "iteration": an epoch learns from about this many of the rollout's
+    # decisions per episode the rollout ended (whole minibatches, at least one; 0: all of them). Early, when
+    # episodes are short, every decision is learned from; late, when an episode runs to a thousand decisions and
+    # more, the rollouts are still played (the budget is in episodes) but few of their decisions are learned from
+    rollout: str = "smdp"  # "smdp": a rollout step is an SMDP step of every episode (the batch waits for the
+    # slowest pass to land); "iteration": a world iteration, the episodes at a decision act (ROLLOUTS)
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
     # 100 updates, 0.40 after 400, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0, 200 test starts)
@@ -65,6 +73,14 @@ class PPOConfig:
                              f"got {self.num_minibatches}")
         if not 1 <= self.resets <= self.num_envs:
             raise ValueError(f"resets: allowed an integer in [1, num_envs = {self.num_envs}], got {self.resets}")
+        if not 0 <= self.max_minibatches:
+            raise ValueError(f"max_minibatches: allowed an integer >= 0 (0: every minibatch), got "
+                             f"{self.max_minibatches}")
+        if self.learn_per_episode < 0 or (self.learn_per_episode and self.rollout != "iteration"):
+            raise ValueError(f"learn_per_episode: allowed an integer >= 0, and > 0 only with rollout 'iteration', got "
+                             f"{self.learn_per_episode} (rollout {self.rollout!r})")
+        if self.rollout not in ROLLOUTS:
+            raise ValueError(f"rollout: allowed {', '.join(ROLLOUTS)}, got {self.rollout!r}")
         if self.network not in NETWORKS:
             raise ValueError(f"network: allowed {', '.join(NETWORKS)}, got {self.network!r}")
         if self.network == "entity" and (self.heads < 1 or self.hidden % self.heads or self.blocks < 0):
@@ -79,6 +95,15 @@ class PPOConfig:
                 raise ValueError(f"mix: num_envs ({self.num_envs}) and resets ({self.resets}) must divide among the "
                                  f"{tasks} tasks, got {self.mix}")
 
+
+#: how a rollout steps its episodes. ``"smdp"``: ``num_steps`` SMDP steps of every episode
+#: (:meth:`kx.sim.gym.KeepAway.step_batch`), each until the episode's next decision, so the whole batch iterates
+#: until the slowest pass has landed (4-7 iterations a step where an episode needs 1.1-1.5 on average). ``"iteration"``:
+#: ``num_steps`` world iterations of every episode (:meth:`kx.sim.gym.KeepAway.iterate_batch`); the episodes at a
+#: decision act and are learned from, the others fly (masked out: ``Transition.valid``), and the passes in flight
+#: at the rollout's end land before the critic bootstraps (:meth:`kx.sim.gym.KeepAway.land_batch`). Both learn from
+#: the same SMDP steps (:func:`gae` and :func:`gae_iterations` give the same advantages).
+ROLLOUTS = ("smdp", "iteration")
 
 #: the networks PPO trains, and the observation of the environment each reads (kx.sim.gym.KeepAway)
 NETWORKS = {"mlp": "fixed", "entity": "entities"}
@@ -194,18 +219,32 @@ def _reset(key, cfg: PPOConfig, env, env_params):
     return mixed_tokens([o for o, _ in out]), tuple(s for _, s in out)
 
 
-def _step(key, cfg: PPOConfig, env, state, action, env_params):
-    """``step_batch`` of the one task, or of each task of the mix on its share of the batch (``resets`` split
-    evenly): the observations as one batch (:func:`mixed_tokens`), rewards and ends in the batch's order."""
+def _step(key, cfg: PPOConfig, env, state, action, env_params, how: str = "step"):
+    """``step_batch`` of the one task (``how``: ``"iterate"``, ``iterate_batch``; ``"land"``, ``land_batch``,
+    ``action`` unused), or of each task of the mix on its share of the batch (``resets`` split evenly): the
+    observations as one batch (:func:`mixed_tokens`), rewards, ends and iterations in the batch's order."""
+
+    def call(e, k, s, a, resets):
+        if how == "land":
+            return e.land_batch(k, s, env_params, resets)
+        return getattr(e, f"{how}_batch")(k, s, a, env_params, resets)
+
     if not isinstance(env, tuple):
-        return env.step_batch(key, state, action, env_params, cfg.resets)
+        return call(env, key, state, action, cfg.resets)
     n = cfg.num_envs // len(env)
-    outs = [e.step_batch(k, s, action[i * n:(i + 1) * n], env_params, cfg.resets // len(env))
+    outs = [call(e, k, s, None if action is None else action[i * n:(i + 1) * n], cfg.resets // len(env))
             for i, (e, s, k) in enumerate(zip(env, state, jax.random.split(key, len(env))))]
     info = {"iterations": jnp.concatenate([o[4]["iterations"] for o in outs]),
             "shared_starts": sum(o[4]["shared_starts"] for o in outs)}
     return (mixed_tokens([o[0] for o in outs]), tuple(o[1] for o in outs), jnp.concatenate([o[2] for o in outs]),
             jnp.concatenate([o[3] for o in outs]), info)
+
+
+def _deciding(env, state) -> jax.Array:
+    """``[num_envs]``: the episodes at a decision (:meth:`kx.sim.gym.KeepAway.deciding`), in the batch's order."""
+    if not isinstance(env, tuple):
+        return env.deciding(state)
+    return jnp.concatenate([e.deciding(s) for e, s in zip(env, state)])
 
 
 #: the actor's layers in ``params["params"]``, input first (:class:`ActorCritic`)
@@ -238,6 +277,7 @@ class Transition(NamedTuple):
     reward: jax.Array
     done: jax.Array
     iterations: jax.Array  # the world's iterations the SMDP step spanned (its discount is gamma ** iterations)
+    valid: Any = None  # rollout "iteration": bool, the episode was at a decision (a step learned from); else None
 
 
 def gae(rewards, values, dones, last_value, gamma: float, lam: float, durations=None):
@@ -263,6 +303,45 @@ def gae(rewards, values, dones, last_value, gamma: float, lam: float, durations=
     return adv, adv + values
 
 
+def gae_iterations(rewards, values, dones, valid, last_value, last_reward, last_iterations, last_done,
+                   gamma: float, lam: float):
+    """:func:`gae` of a rollout of world iterations (``[T, N]``; :data:`ROLLOUTS`' ``"iteration"``): ``valid[t]``
+    says the episode was at a decision at iteration ``t`` (a step learned from), ``rewards[t]`` is iteration
+    ``t``'s reward and ``dones[t]`` ends the episode after it. An SMDP step runs from a decision to the episode's
+    next one: its reward is the sum of its iterations', its discount ``gamma`` to the power of their number, so
+    each valid step's advantage is :func:`gae`'s of the same steps. The passes in flight at the rollout's end
+    landed after it (:meth:`kx.sim.gym.KeepAway.land_batch`): ``last_reward``, ``last_iterations`` and
+    ``last_done [N]`` are what that took, ``last_value`` the critic at the decision they landed at. Returns
+    advantages and value targets ``[T, N]``, zero where not valid."""
+    g = jnp.asarray(gamma, jnp.float32)
+
+    def back(carry, x):
+        next_adv, next_value, acc, tau, term = carry
+        r, v, d, m = x
+        # iteration t joins the step that follows it; an end at t cuts off what came after (the next episode's)
+        acc = jnp.where(d, r, r + acc)
+        tau = jnp.where(d, 1, tau + 1)
+        term = d | term
+        disc = g ** tau.astype(jnp.float32)
+        live = 1.0 - term.astype(jnp.float32)
+        delta = acc + disc * next_value * live - v
+        adv = delta + disc * lam * live * next_adv
+        keep = lambda new, old: jnp.where(m, new, old)  # noqa: E731
+        carry = (keep(adv, next_adv), keep(v, next_value), keep(jnp.zeros_like(acc), acc),
+                 keep(jnp.zeros_like(tau), tau), m.__invert__() & term)
+        return carry, jnp.where(m, adv, 0.0)
+
+    init = (jnp.zeros_like(last_value), last_value, last_reward, last_iterations.astype(jnp.int32),
+            last_done.astype(bool))
+    _, adv = jax.lax.scan(back, init, (rewards, values, dones.astype(bool), valid), reverse=True)
+    return adv, jnp.where(valid, adv + values, 0.0)
+
+
+def _mean(x, w):
+    """The mean of ``x`` (over its entries weighted ``w``: 1 where valid, 0 where not; all of them if None)."""
+    return x.mean() if w is None else (x * w).sum() / jnp.maximum(w.sum(), 1.0)
+
+
 def loss(params, apply_fn, batch: Transition, advantages, targets, clip_eps: float, vf_coef: float,
          ent_coef: float):
     """PPO's loss of a minibatch: the clipped surrogate on normalised advantages, the clipped value loss,
@@ -271,11 +350,20 @@ def loss(params, apply_fn, batch: Transition, advantages, targets, clip_eps: flo
     logp_all = jax.nn.log_softmax(logits)
     logp = jnp.take_along_axis(logp_all, batch.action[..., None], axis=-1)[..., 0]
     v_clipped = batch.value + jnp.clip(value - batch.value, -clip_eps, clip_eps)
-    value_loss = 0.5 * jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2).mean()
     ratio = jnp.exp(logp - batch.log_prob)
-    adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
-    policy_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
-    entropy = -(jnp.exp(logp_all) * logp_all).sum(-1).mean()
+    entropy_each = -(jnp.exp(logp_all) * logp_all).sum(-1)
+    if batch.valid is None:
+        value_loss = 0.5 * jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2).mean()
+        adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        policy_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv).mean()
+        entropy = entropy_each.mean()
+    else:  # only the steps at a decision count (the iteration rollout's flying episodes are padding)
+        w = batch.valid.astype(jnp.float32)
+        value_loss = 0.5 * _mean(jnp.maximum((value - targets) ** 2, (v_clipped - targets) ** 2), w)
+        mu = _mean(advantages, w)
+        adv = (advantages - mu) / (jnp.sqrt(_mean((advantages - mu) ** 2, w)) + 1e-8)
+        policy_loss = -_mean(jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - clip_eps, 1 + clip_eps) * adv), w)
+        entropy = _mean(entropy_each, w)
     return policy_loss + vf_coef * value_loss - ent_coef * entropy, (policy_loss, value_loss, entropy)
 
 
@@ -330,18 +418,22 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     that shared a start, the world's iterations played."""
     net = network(cfg)
 
+    iterating = cfg.rollout == "iteration"
+
     def env_step(carry, key):
         learner, ended, return_sum, shared, iterations = carry
         k_act, k_env = jax.random.split(key)
         logits, value = net.apply(learner.params, learner.obs)
         action = jax.random.categorical(k_act, logits)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
-        obs2, env_state, reward, done, info = _step(k_env, cfg, env, learner.env, action, env_params)
+        valid = _deciding(env, learner.env) if iterating else None
+        obs2, env_state, reward, done, info = _step(k_env, cfg, env, learner.env, action, env_params,
+                                                    "iterate" if iterating else "step")
         returns = learner.returns + reward
         nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
         carry = (nxt, ended + done.sum(dtype=jnp.int32), return_sum + jnp.where(done, returns, 0.0).sum(),
                  shared + info["shared_starts"].astype(jnp.int32), iterations + info["iterations"].sum(dtype=jnp.int32))
-        return carry, Transition(learner.obs, action, log_prob, value, reward, done, info["iterations"])
+        return carry, Transition(learner.obs, action, log_prob, value, reward, done, info["iterations"], valid)
 
     def rollout(learner, key):
         zero = jnp.zeros((), jnp.int32)
@@ -349,6 +441,22 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
                             jax.random.split(key, cfg.num_steps))
 
     return rollout
+
+
+def make_land(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+    """``land(learner, key) -> ((learner, ended, return_sum, shared, iterations), (reward, done, iterations))``: the
+    passes in flight land (:meth:`kx.sim.gym.KeepAway.land_batch`), so that every episode is at a decision; what
+    each episode's landing took (``[N]``) and what its episodes did, as :func:`make_rollout` counts them."""
+
+    def land(learner, key):
+        obs2, env_state, reward, done, info = _step(key, cfg, env, learner.env, None, env_params, "land")
+        returns = learner.returns + reward
+        nxt = learner._replace(env=env_state, obs=obs2, returns=jnp.where(done, 0.0, returns))
+        counts = (nxt, done.sum(dtype=jnp.int32), jnp.where(done, returns, 0.0).sum(),
+                  info["shared_starts"].astype(jnp.int32), info["iterations"].sum(dtype=jnp.int32))
+        return counts, (reward, done, info["iterations"])
+
+    return land
 
 
 def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
@@ -363,35 +471,87 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     n_batch = cfg.num_envs * cfg.num_steps
     rollout = make_rollout(cfg, env, env_params)
 
+    land = make_land(cfg, env, env_params)
+
     def update(learner: Learner, key: jax.Array, lr: jax.Array):
         k_roll, k_epochs = jax.random.split(key)
         (learner, ended, return_sum, shared, iterations), traj = rollout(learner, k_roll)
-        _, last_value = net.apply(learner.params, learner.obs)
-        adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
-                           cfg.gae_lambda, traj.iterations)
+        if cfg.rollout == "iteration":
+            (learner, e2, r2, s2, i2), (last_r, last_d, last_i) = land(learner, jax.random.fold_in(k_roll, 1))
+            ended, return_sum, shared, iterations = ended + e2, return_sum + r2, shared + s2, iterations + i2
+            _, last_value = net.apply(learner.params, learner.obs)
+            adv, targets = gae_iterations(traj.reward * cfg.reward_scale, traj.value, traj.done, traj.valid,
+                                          last_value, last_r * cfg.reward_scale, last_i, last_d, cfg.gamma,
+                                          cfg.gae_lambda)
+            decided = traj.valid.sum(dtype=jnp.int32)
+        else:
+            _, last_value = net.apply(learner.params, learner.obs)
+            adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
+                               cfg.gae_lambda, traj.iterations)
+            decided = jnp.int32(n_batch)
+
+        used = min(cfg.num_minibatches, cfg.max_minibatches or cfg.num_minibatches)
+
+        def sgd_step(params, opt_state, b):
+            t, a, tg = b
+            grads, aux = jax.grad(loss, has_aux=True)(params, net.apply, t, a, tg, cfg.clip_eps, cfg.vf_coef,
+                                                      cfg.ent_coef)
+            step, opt_state = tx.update(grads, opt_state, params)
+            return jax.tree.map(lambda p, u: p - lr * u, params, step), opt_state, jnp.stack(aux)
 
         def epoch(carry, k):
             params, opt_state = carry
             perm = jax.random.permutation(k, n_batch)
             flat = jax.tree.map(lambda a: a.reshape((n_batch,) + a.shape[2:])[perm], (traj, adv, targets))
-            mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:]), flat)
+            mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:])[:used], flat)
 
             def minibatch(carry, b):
-                params, opt_state = carry
-                t, a, tg = b
-                grads, aux = jax.grad(loss, has_aux=True)(params, net.apply, t, a, tg, cfg.clip_eps, cfg.vf_coef,
-                                                          cfg.ent_coef)
-                step, opt_state = tx.update(grads, opt_state, params)
-                params = jax.tree.map(lambda p, u: p - lr * u, params, step)
+                params, opt_state, aux = sgd_step(*carry, b)
                 return (params, opt_state), aux
 
-            return jax.lax.scan(minibatch, (params, opt_state), mb)
+            (params, opt_state), aux = jax.lax.scan(minibatch, (params, opt_state), mb)
+            return (params, opt_state), (aux.sum(0), jnp.int32(used))
 
-        (params, opt_state), aux = jax.lax.scan(epoch, (learner.params, learner.opt_state),
-                                                jax.random.split(k_epochs, cfg.update_epochs))
+        def learn_decisions(params, opt_state, key):
+            """An iteration rollout's learning: its valid steps in a random order, in as many minibatches of
+            ``n_batch / num_minibatches`` entries as they fill (the last one's rest padding; fewer with
+            ``max_minibatches`` or ``learn_per_episode``), the flying episodes' entries never computed; each
+            epoch passes over those minibatches in an order of its own."""
+            k_order, k_epochs = jax.random.split(key)
+            flat_valid = traj.valid.reshape(n_batch)
+            order = jnp.argsort(jnp.where(flat_valid, jax.random.uniform(k_order, (n_batch,)), 2.0))
+            flat = jax.tree.map(lambda a: a.reshape((n_batch,) + a.shape[2:])[order], (traj, adv, targets))
+            mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:]), flat)
+            size = n_batch // cfg.num_minibatches
+            count = jnp.minimum((flat_valid.sum(dtype=jnp.int32) + size - 1) // size, used)
+            if cfg.learn_per_episode:
+                count = jnp.minimum(count, jnp.maximum((ended * cfg.learn_per_episode + size - 1) // size, 1))
+
+            def epoch(carry, k):
+                params, opt_state, sums = carry
+                slots = jnp.arange(cfg.num_minibatches)
+                visit = jnp.argsort(jnp.where(slots < count, jax.random.uniform(k, slots.shape), 2.0))
+
+                def body(i, c):
+                    params, opt_state, sums = c
+                    params, opt_state, aux = sgd_step(params, opt_state, jax.tree.map(lambda a: a[visit[i]], mb))
+                    return params, opt_state, sums + aux
+
+                return jax.lax.fori_loop(0, count, body, (params, opt_state, sums)), None
+
+            (params, opt_state, sums), _ = jax.lax.scan(epoch, (params, opt_state, jnp.zeros(3)),
+                                                        jax.random.split(k_epochs, cfg.update_epochs))
+            return (params, opt_state), (sums[None], (count * cfg.update_epochs)[None])
+
+        if cfg.rollout == "iteration":
+            (params, opt_state), (sums, counts) = learn_decisions(learner.params, learner.opt_state, k_epochs)
+        else:
+            (params, opt_state), (sums, counts) = jax.lax.scan(epoch, (learner.params, learner.opt_state),
+                                                               jax.random.split(k_epochs, cfg.update_epochs))
+        aux = sums.sum(0) / jnp.maximum(counts.sum(), 1).astype(jnp.float32)
         learner = learner._replace(params=params, opt_state=opt_state, updates=learner.updates + 1,
-                                   decisions=learner.decisions + n_batch, episodes=learner.episodes + ended)
-        metrics = {"policy_loss": aux[0].mean(), "value_loss": aux[1].mean(), "entropy": aux[2].mean(),
+                                   decisions=learner.decisions + decided, episodes=learner.episodes + ended)
+        metrics = {"policy_loss": aux[0], "value_loss": aux[1], "entropy": aux[2],
                    "return_sum": return_sum, "episodes": ended, "shared_starts": shared, "iterations": iterations}
         return learner, metrics
 

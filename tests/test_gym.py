@@ -174,3 +174,60 @@ def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
         assert int(batch.world.t[i]) == 0 and not bool(batch.world.done[i])
     words = np.asarray(batch.noise_word)
     assert len(set(words.tolist())) == n
+
+
+def test_iterating_one_world_iteration_at_a_time_plays_the_smdp_steps():
+    """``iterate_batch`` (one world iteration of every episode; those at a decision act) and ``land_batch``
+    (the passes in flight land) play the episodes ``step_batch_env`` plays with the same decisions: the same
+    worlds at every decision, each SMDP step's reward the sum of its iterations' and its end at the same
+    step, however the batch's episodes interleave their passes."""
+    n, steps = 10, 25
+    _, start = ENV.reset_batch(jax.random.key(8), n, PARAMS)
+    step = jax.jit(ENV.step_batch_env)
+    iterate = jax.jit(ENV.iterate_batch, static_argnums=4)
+    land = jax.jit(ENV.land_batch, static_argnums=3)
+    rng = np.random.default_rng(9)
+    plan = np.where(rng.random((steps, n)) < 0.8, 0, rng.integers(1, gym.N_ACTIONS, (steps, n)))
+    worlds, rewards, ends = [], [], np.full(n, steps)
+    batch = start
+    for k in range(steps):
+        _, batch, r, d, _ = step(batch, jnp.asarray(plan[k], jnp.int32), PARAMS)
+        worlds.append(batch.world)
+        rewards.append(np.asarray(r))
+        ends = np.where(np.asarray(d) & (ends == steps), k, ends)
+    last = np.minimum(ends, steps - 1)  # each episode's last SMDP step compared
+    assert (ends < steps).any() and ends.max() > 5
+    batch, made, acc = start, np.zeros(n, int), np.zeros(n)
+    finished = np.zeros(n, bool)
+    flying_seen = ended = 0
+    key = jax.random.key(0)
+    while not finished.all():
+        deciding = np.asarray(ENV.deciding(batch))
+        flying_seen += int((~deciding & ~finished).sum())
+        action = jnp.asarray(plan[np.minimum(made, steps - 1), np.arange(n)], jnp.int32)
+        _, nxt, r, d, info = iterate(key, batch, action, PARAMS, 4)
+        assert bool((info["iterations"] == 1).all())
+        acc += np.where(finished, 0.0, np.asarray(r))
+        made += deciding & ~finished
+        now = np.asarray(ENV.deciding(nxt))
+        for i in np.flatnonzero(~finished):
+            if bool(d[i]):  # the episode ended at the SMDP step where step_batch_env's did
+                assert made[i] - 1 == ends[i]
+                assert acc[i] == pytest.approx(rewards[ends[i]][i], abs=1e-6)
+                finished[i], ended = True, ended + 1
+            elif now[i]:  # a decision reached: the world after SMDP step made - 1
+                k = made[i] - 1
+                _same(jax.tree.map(lambda a: a[..., i], nxt.world), jax.tree.map(lambda a: a[..., i], worlds[k]))
+                assert acc[i] == pytest.approx(rewards[k][i], abs=1e-6)
+                acc[i] = 0.0
+                finished[i] = k == last[i]
+        batch = nxt
+    assert flying_seen > 20 and ended > 0  # passes flew while other episodes decided; some episodes ended
+    # landing from mid-flight: every episode at a decision afterwards, after iterations of its own
+    mid = iterate(key, start, jnp.ones(n, jnp.int32), PARAMS, 4)[1]  # every episode passes
+    assert int((~ENV.deciding(mid)).sum()) >= n // 2  # (a pass to a teammate on the holder's cell lands at once)
+    _, landed, r, d, info = land(key, mid, PARAMS, 4)
+    assert bool(ENV.deciding(landed).all())
+    its = np.asarray(info["iterations"])
+    waiting = np.asarray(ENV.deciding(mid))
+    assert (its[waiting] == 0).all() and (its[~waiting] >= 1).all() and len(set(its[~waiting].tolist())) > 1

@@ -67,6 +67,78 @@ def test_the_clipped_loss_by_hand():
     assert float(total) == pytest.approx(want_pl + 0.5 * want_vl - 0.01 * want_ent, rel=1e-5)
 
 
+def test_the_iteration_rollouts_gae_is_the_smdp_gae_of_the_same_steps():
+    """:func:`kx.ppo.gae_iterations` over world iterations (each SMDP step's reward spread over its iterations,
+    the steps at a decision valid, the rollout cut in the middle of passes that land afterwards) gives each
+    valid step :func:`kx.ppo.gae`'s advantage of the same SMDP steps, ends included."""
+    rng = np.random.default_rng(0)
+    steps, n, gamma, lam = 40, 6, 0.99, 0.95
+    r = rng.random((steps, n)).astype(np.float32)
+    d = rng.random((steps, n)) < 0.15
+    tau = rng.integers(1, 6, (steps, n))
+    v = rng.random((steps, n)).astype(np.float32)
+    after = rng.random(n).astype(np.float32)  # the critic after the last step
+    its = []  # each episode's iterations: (reward, end, value, decision)
+    for i in range(n):
+        seq = []
+        for k in range(steps):
+            share = rng.random(tau[k, i])
+            share = share / share.sum() * r[k, i]
+            seq += [(share[j], bool(d[k, i]) and j == tau[k, i] - 1, v[k, i] if j == 0 else 99.0, j == 0)
+                    for j in range(tau[k, i])]
+        its.append(seq)
+    length = min(len(s) for s in its) - 3  # the rollout cuts through some steps
+    arrays = [np.zeros((length, n), t) for t in (np.float32, bool, np.float32, bool)]
+    last = [np.zeros(n, t) for t in (np.float32, np.int32, bool, np.float32)]  # reward, iterations, end, value
+    for i, seq in enumerate(its):
+        for a, col in zip(arrays, zip(*seq[:length])):
+            a[:, i] = col
+        j = length
+        while j < len(seq) and not seq[j][3]:  # the landing: to the next decision
+            last[0][i] += seq[j][0]
+            last[1][i] += 1
+            last[2][i] |= seq[j][1]
+            j += 1
+        last[3][i] = seq[j][2] if j < len(seq) else after[i]
+    rew, end, val, valid = map(jnp.asarray, arrays)
+    adv, targets = ppo.gae_iterations(rew, val, end, valid, jnp.asarray(last[3]), *map(jnp.asarray, last[:3]), gamma,
+                                      lam)
+    valid = arrays[3]
+    assert (last[1] > 0).any() and arrays[1].any() and not valid.all()
+    for i in range(n):
+        k = int(valid[:, i].sum())  # the SMDP steps the rollout began; the last one's value is where it landed
+        want, want_t = ppo.gae(jnp.asarray(r[:k, i:i + 1]), jnp.asarray(v[:k, i:i + 1]), jnp.asarray(d[:k, i:i + 1]),
+                               jnp.asarray(last[3][i:i + 1]), gamma, lam, jnp.asarray(tau[:k, i:i + 1]))
+        np.testing.assert_allclose(np.asarray(adv[:, i])[valid[:, i]], np.asarray(want[:, 0]), rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(targets[:, i])[valid[:, i]], np.asarray(want_t[:, 0]), rtol=1e-5,
+                                   atol=1e-6)
+        assert (np.asarray(adv[:, i])[~valid[:, i]] == 0).all()
+
+
+def test_the_masked_loss_is_the_loss_of_the_valid_steps_alone():
+    """With ``Transition.valid``, the loss (its normalised advantages too) is that of the valid steps alone: the
+    padding (an iteration rollout's flying episodes) changes nothing, whatever it holds."""
+    net = ppo.ActorCritic(hidden=8)
+    key = jax.random.key(1)
+    k = jax.random.split(key, 6)
+    m = 10
+    obs = jax.random.normal(k[0], (m, 13))
+    params = net.init(key, obs[0])
+    valid = jnp.array([1, 0, 1, 1, 0, 1, 1, 0, 1, 1], bool)
+    batch = ppo.Transition(obs, jax.random.randint(k[1], (m,), 0, 3), jnp.log(jax.random.uniform(k[2], (m,))),
+                           jax.random.normal(k[3], (m,)), jnp.zeros(m), jnp.zeros(m, bool), jnp.ones(m, jnp.int32),
+                           valid)
+    adv, targets = jax.random.normal(k[4], (m,)), jax.random.normal(k[5], (m,))
+    total, parts = ppo.loss(params, net.apply, batch, adv, targets, 0.2, 0.5, 0.01)
+    keep = np.flatnonzero(np.asarray(valid))
+    alone = jax.tree.map(lambda a: a[keep], batch._replace(valid=None))
+    want, want_parts = ppo.loss(params, net.apply, alone, adv[keep], targets[keep], 0.2, 0.5, 0.01)
+    np.testing.assert_allclose([float(total), *map(float, parts)], [float(want), *map(float, want_parts)], rtol=2e-5)
+    junk = batch._replace(obs=batch.obs.at[1].set(100.0), log_prob=batch.log_prob.at[4].set(-50.0))
+    again, _ = ppo.loss(params, net.apply, junk, adv.at[7].set(1e3), targets.at[7].set(-1e3), 0.2, 0.5, 0.01)
+    assert float(again) == pytest.approx(float(total), rel=2e-5)
+
+
 @pytest.mark.slow  # ~40 s: compiles the whole training twice
 def test_training_vmapped_over_seeds_is_seed_by_seed_and_deterministic():
     cfg = ppo.PPOConfig(num_envs=8, num_steps=8, updates=3, num_minibatches=2, update_epochs=2, hidden=16)
@@ -87,3 +159,43 @@ def test_training_vmapped_over_seeds_is_seed_by_seed_and_deterministic():
 def test_a_minibatch_count_that_does_not_divide_the_batch_is_refused():
     with pytest.raises(ValueError, match="num_minibatches: must divide"):
         ppo.PPOConfig(num_envs=3, num_steps=5, num_minibatches=4)
+
+
+def test_an_iteration_rollouts_update_learns_from_its_decisions_alone_and_limits_what_it_learns_from():
+    """``rollout="iteration"``: an update counts as decisions only the steps where an episode was at one; it is
+    deterministic; a limit on the minibatches (``max_minibatches``, ``learn_per_episode``) that does not bind
+    gives the same update bit for bit, and one that binds gives another."""
+    sim, params = KeepAwayConfig(), KeepAwayParams(kick_noise_deg=10.0)
+    base = dict(num_envs=16, num_steps=24, num_minibatches=4, update_epochs=2, hidden=8, resets=4, rollout="iteration")
+
+    def updated(**kw):
+        cfg = ppo.PPOConfig(**base, **kw)
+        env = ppo.environment(cfg, sim)
+        learner = ppo.init(jax.random.key(0), cfg, env, params)
+        out, m = jax.jit(ppo.make_update(cfg, env, params))(learner, jax.random.key(1), jnp.float32(1e-3))
+        return out, m
+
+    plain, m = updated()
+    decided, stepped = int(plain.decisions), 16 * 24
+    assert 0 < decided < stepped  # passes flew: those iterations are not decisions
+    assert int(m["iterations"]) >= stepped and int(m["episodes"]) > 0
+    def apart(a, b):
+        return max(float(np.abs(np.asarray(x) - np.asarray(y)).max())
+                   for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
+
+    assert apart(plain, updated()[0]) == 0.0  # deterministic
+    # a limit that does not bind: the same update (another program: its sums may round apart in the last bit)
+    assert apart(plain, updated(max_minibatches=4)[0]) < 1e-6
+    assert apart(plain, updated(learn_per_episode=10_000)[0]) < 1e-6
+    for other in (updated(max_minibatches=1)[0], updated(learn_per_episode=1)[0]):  # binding: fewer steps
+        assert apart(plain, other) > 1e-4
+        assert int(other.decisions) == decided  # the same episodes played either way
+
+
+def test_bad_rollout_settings_are_refused_with_the_field_named():
+    with pytest.raises(ValueError, match="rollout: allowed smdp, iteration"):
+        ppo.PPOConfig(rollout="frames")
+    with pytest.raises(ValueError, match="learn_per_episode: .*only with rollout 'iteration'"):
+        ppo.PPOConfig(learn_per_episode=10)
+    with pytest.raises(ValueError, match="max_minibatches: allowed an integer >= 0"):
+        ppo.PPOConfig(max_minibatches=-1)

@@ -96,14 +96,17 @@ def run(args) -> None:
             k = jax.random.fold_in(key, 10_000 + state["n"])
             state["n"] += 1
             t = time.perf_counter()
+            before = int(state["learner"].decisions)
             if learn:
                 state["learner"], m = update(state["learner"], k, lr)
+                decided = int(state["learner"].decisions) - before
             else:
-                (_, _, _, _, it), _ = rollout(state["learner"], k)
+                (_, _, _, _, it), traj = rollout(state["learner"], k)
                 m = {"iterations": it}
+                decided = steps_per_update if traj.valid is None else int(traj.valid.sum())
             iterations += int(jax.block_until_ready(m["iterations"]))
             dt += time.perf_counter() - t
-            steps += steps_per_update
+            steps += decided  # the decisions learned from (an iteration rollout's flying episodes are not)
         return dt, steps, iterations
 
     # the environment's two interfaces on the same episodes and decisions (holding): the per-episode step

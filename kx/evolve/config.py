@@ -337,7 +337,9 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
 
 #: config fields added after runs were written with the code before them: a config.json or a checkpoint
 #: without one reads it as this value, which is what that code did (so those runs resume and seed targets)
-ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper", "novelty.behaviour": "paper"}
+ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper", "novelty.behaviour": "paper",
+               **{f"{section}.{field}": value for section in ("ppo", "ppo_entity")
+                  for field, value in (("rollout", "smdp"), ("max_minibatches", 0), ("learn_per_episode", 0))}}
 
 
 def with_later_fields(d: dict) -> dict:

@@ -182,9 +182,18 @@ class KeepAway:
         drawn from ``key`` (those of ``reset_batch(key, resets)``), taken in episode order by the episodes
         that ended, each with a noise word of its own (``info["shared_starts"]``: how many episodes had to
         share a start, when more than ``resets`` ended)."""
-        obs, nxt, reward, done, info = self.step_batch_env(state, action, params)
+        _, nxt, reward, done, info = self.step_batch_env(state, action, params)
+        return self._restart(key, nxt, reward, done, info, params, resets)
+
+    def _restart(self, key, nxt: "BatchState", reward, done, info, params: KeepAwayParams, resets: int):
+        """``nxt`` with the episodes that ended (``done``) replaced by new ones (:meth:`step_batch`'s rule)."""
         k_starts, k_words = jax.random.split(key)
-        _, fresh = self.reset_batch(k_starts, resets, params)
+        # the start states are drawn only when an episode has ended (a start costs about 50 iterations; the
+        # same states either way: unused ones are never read)
+        fresh = jax.lax.cond(done.any(), lambda k: self.reset_batch(k, resets, params)[1],
+                             lambda k: jax.tree.map(jnp.zeros_like,
+                                                    jax.eval_shape(lambda: self.reset_batch(k, resets, params)[1])),
+                             k_starts)
         n = done.shape[0]
         rank = jnp.cumsum(done.astype(jnp.int32)) - 1  # the i-th episode to end takes start i (mod resets)
         take = jnp.where(done, rank % resets, 0)
@@ -193,6 +202,52 @@ class KeepAway:
         out = BatchState(world=world, noise_word=jnp.where(done, words, nxt.noise_word))
         info = dict(info, shared_starts=jnp.maximum(done.sum() - resets, 0))
         return self.observation_batch(out), out, reward, done, info
+
+    # ------------------------------------------------------------------ one world iteration at a time
+
+    @staticmethod
+    def deciding(state: "BatchState") -> jax.Array:
+        """``[n]``: which episodes are at a decision (a keeper holds the ball and the episode runs on)."""
+        return (state.world.holder >= 0) & ~state.world.done
+
+    def iterate_batch(self, key: jax.Array, state: "BatchState", action: jax.Array, params: KeepAwayParams,
+                      resets: int) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
+        """One world iteration of ``n`` episodes: those at a decision (:meth:`deciding`) act on ``action [n]``,
+        the others (a pass in flight) ignore it; the episodes that end are replaced as :meth:`step_batch`
+        replaces them. The reward is the share of ``max_iterations`` the iteration survived, so that an SMDP
+        step's reward is the sum of its iterations' (the same episodes as :meth:`step_batch` plays, one
+        iteration a call: no episode waits for another's pass to land)."""
+        s_max = env.noise_limit(params.kick_noise_deg)
+        world = env.transition(state.world, self._keeper(state.world, action),
+                               env.kick_noise(state.noise_word, state.world.t, s_max), params, self.config)
+        reward = survived(world, params) - survived(state.world, params)
+        nxt = state.replace(world=world)
+        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
+        return self._restart(key, nxt, reward, world.done, info, params, resets)
+
+    def land_batch(self, key: jax.Array, state: "BatchState", params: KeepAwayParams,
+                   resets: int) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
+        """The episodes with a pass in flight iterate until it lands (their next decision) or they end; those
+        at a decision wait, unchanged. ``reward``, ``done`` and ``info["iterations"]`` are each episode's over
+        those iterations; the ended ones are replaced as :meth:`step_batch` replaces them. Afterwards every
+        episode is at a decision."""
+        s_max = env.noise_limit(params.kick_noise_deg)
+        word = state.noise_word
+
+        def flying(w):
+            return (w.holder < 0) & ~w.done
+
+        def body(w):
+            moved = env.transition(w, jnp.full_like(w.holder, -1), env.kick_noise(word, w.t, s_max), params,
+                                   self.config)
+            fly = flying(w)
+            return jax.tree.map(lambda new, old: jnp.where(fly, new, old), moved, w)
+
+        world = jax.lax.while_loop(lambda w: jnp.any(flying(w)), body, state.world)
+        reward = survived(world, params) - survived(state.world, params)
+        nxt = state.replace(world=world)
+        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
+        return self._restart(key, nxt, reward, world.done, info, params, resets)
 
 
 @struct.dataclass

@@ -155,6 +155,9 @@ class PPOEncoding(Encoding):
         need((c.num_envs * c.num_steps) % c.num_minibatches == 0, f"{s}.num_minibatches",
              f"a divisor of num_envs x num_steps = {c.num_envs * c.num_steps}", c.num_minibatches)
         need(c.resets <= c.num_envs, f"{s}.resets", f"an integer in [1, num_envs = {c.num_envs}]", c.resets)
+        for f in ("max_minibatches", "learn_per_episode"):
+            need(is_int(c[f]) and 0 <= c[f] <= 1_000_000, f"{s}.{f}", "an integer in [0, 1000000] (0: no limit)", c[f])
+        need(isinstance(c.rollout, str), f"{s}.rollout", f"one of {', '.join(ppo.ROLLOUTS)}", c.rollout)
         mix = self._mix(c, sim)
         try:
             self.ppo = ppo.PPOConfig(network=self.network, mix=mix, **{
