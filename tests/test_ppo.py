@@ -184,12 +184,28 @@ def test_an_iteration_rollouts_update_learns_from_its_decisions_alone_and_limits
                    for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
 
     assert apart(plain, updated()[0]) == 0.0  # deterministic
-    # a limit that does not bind: the same update (another program: its sums may round apart in the last bit)
-    assert apart(plain, updated(max_minibatches=4)[0]) < 1e-6
-    assert apart(plain, updated(learn_per_episode=10_000)[0]) < 1e-6
-    for other in (updated(max_minibatches=1)[0], updated(learn_per_episode=1)[0]):  # binding: fewer steps
-        assert apart(plain, other) > 1e-4
-        assert int(other.decisions) == decided  # the same episodes played either way
+    # a limit that does not bind: the same update (another program: its sums may round apart in the last bit);
+    # one that binds: fewer steps of gradient, on the same episodes
+    assert apart(plain, updated(learn_per_episode=10_000, max_minibatches=4)[0]) < 1e-6
+    other = updated(learn_per_episode=1)[0]
+    assert apart(plain, other) > 1e-4 and int(other.decisions) == decided
+
+
+@pytest.mark.slow  # two more programs to compile: the default suite checks learn_per_episode's limit
+def test_max_minibatches_binds_or_changes_nothing():
+    sim, params = KeepAwayConfig(), KeepAwayParams(kick_noise_deg=10.0)
+
+    def updated(**kw):
+        cfg = ppo.PPOConfig(num_envs=16, num_steps=24, num_minibatches=4, update_epochs=2, hidden=8, resets=4,
+                            rollout="iteration", **kw)
+        env = ppo.environment(cfg, sim)
+        learner = ppo.init(jax.random.key(0), cfg, env, params)
+        return jax.jit(ppo.make_update(cfg, env, params))(learner, jax.random.key(1), jnp.float32(1e-3))[0]
+
+    a, b = updated(), updated(max_minibatches=1)
+    gap = max(float(np.abs(np.asarray(x) - np.asarray(y)).max())
+              for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
+    assert gap > 1e-4 and int(a.decisions) == int(b.decisions)
 
 
 def test_bad_rollout_settings_are_refused_with_the_field_named():
