@@ -155,26 +155,28 @@ class KeepAway:
         """:meth:`step_env` of ``n`` episodes, ``action [n]``: each episode's decision, then its iterations
         until its own next decision or end (an episode at its decision waits, unchanged, for the others)."""
         s_max = env.noise_limit(params.kick_noise_deg)
-        word = state.noise_word
-
-        def iterate(world, keeper):
-            return env.transition(world, keeper, env.kick_noise(word, world.t, s_max), params, self.config)
-
-        def flying(w):
-            return (w.holder < 0) & ~w.done
-
-        world = iterate(state.world, self._keeper(state.world, action))
-
-        def body(w):
-            moved = iterate(w, jnp.full_like(w.holder, -1))
-            fly = flying(w)
-            return jax.tree.map(lambda new, old: jnp.where(fly, new, old), moved, w)
-
-        world = jax.lax.while_loop(lambda w: jnp.any(flying(w)), body, world)
+        world = env.transition(state.world, self._keeper(state.world, action),
+                               env.kick_noise(state.noise_word, state.world.t, s_max), params, self.config)
+        world = self._fly(world, state.noise_word, params)
         reward = survived(world, params) - survived(state.world, params)
         nxt = state.replace(world=world)
         info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
         return self.observation_batch(nxt), nxt, reward, world.done, info
+
+    def _fly(self, world: State, word: jax.Array, params: KeepAwayParams) -> State:
+        """The episodes with a pass in flight iterate until it lands or they end; the others wait, unchanged."""
+        s_max = env.noise_limit(params.kick_noise_deg)
+
+        def flying(w):
+            return (w.holder < 0) & ~w.done
+
+        def body(w):
+            moved = env.transition(w, jnp.full_like(w.holder, -1), env.kick_noise(word, w.t, s_max), params,
+                                   self.config)
+            fly = flying(w)
+            return jax.tree.map(lambda new, old: jnp.where(fly, new, old), moved, w)
+
+        return jax.lax.while_loop(lambda w: jnp.any(flying(w)), body, world)
 
     def step_batch(self, key: jax.Array, state: "BatchState", action: jax.Array, params: KeepAwayParams,
                    resets: int) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
@@ -231,19 +233,7 @@ class KeepAway:
         at a decision wait, unchanged. ``reward``, ``done`` and ``info["iterations"]`` are each episode's over
         those iterations; the ended ones are replaced as :meth:`step_batch` replaces them. Afterwards every
         episode is at a decision."""
-        s_max = env.noise_limit(params.kick_noise_deg)
-        word = state.noise_word
-
-        def flying(w):
-            return (w.holder < 0) & ~w.done
-
-        def body(w):
-            moved = env.transition(w, jnp.full_like(w.holder, -1), env.kick_noise(word, w.t, s_max), params,
-                                   self.config)
-            fly = flying(w)
-            return jax.tree.map(lambda new, old: jnp.where(fly, new, old), moved, w)
-
-        world = jax.lax.while_loop(lambda w: jnp.any(flying(w)), body, state.world)
+        world = self._fly(state.world, state.noise_word, params)
         reward = survived(world, params) - survived(state.world, params)
         nxt = state.replace(world=world)
         info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
