@@ -215,3 +215,34 @@ def test_bad_rollout_settings_are_refused_with_the_field_named():
         ppo.PPOConfig(learn_per_episode=10)
     with pytest.raises(ValueError, match="max_minibatches: allowed an integer >= 0"):
         ppo.PPOConfig(max_minibatches=-1)
+
+
+@pytest.mark.parametrize("hidden", [16, 64])
+def test_the_evaluators_greedy_decision_is_the_trained_networks(hidden):
+    """The evaluator plays a PPO champion by its own forward pass (:func:`kx.ppo.actor_logits_batch_last`, through
+    the run loop's policy :func:`kx.evolve.encodings.ppo.greedy_policy`): on random weights and start states its
+    logits are :class:`kx.ppo.ActorCritic`'s within float tolerance and its decisions are the network's argmax,
+    exactly, so a reported champion is the network that was trained."""
+    from kx.evolve.encodings.ppo import greedy_policy
+    from kx.sim import env, observe
+    from kx.sim.policies import Shared
+
+    sim, params = KeepAwayConfig(), KeepAwayParams(kick_noise_deg=10.0)
+    net = ppo.ActorCritic(hidden=hidden)
+    for seed in range(3):
+        weights = net.init(jax.random.key(seed), jnp.zeros(13))
+        # weights far from the small initial actor's, so that the logits differ clearly between actions
+        weights = jax.tree.map(lambda a: a * 30.0, weights)
+        states = env.reset_batch(jax.random.key(100 + seed), 400, params, sim)
+        x = observe.fixed_obs(states, sim)  # [13, 400]
+        want, _ = net.apply(weights, x.T)
+        got = ppo.actor_logits_batch_last(weights, x)
+        np.testing.assert_allclose(np.asarray(got).T, np.asarray(want), rtol=1e-5, atol=1e-5)
+        top = np.sort(np.asarray(want), axis=1)
+        clear = (top[:, -1] - top[:, -2]) > 1e-4  # no near-tie that the float tolerance could flip
+        assert clear.sum() >= 390
+        table = jax.tree.map(lambda a: a[None], weights)
+        acts = greedy_policy(sim, hidden).apply(Shared(table, jnp.zeros(400, jnp.int32)), states, None)
+        expect = observe.decode_ranked(jnp.asarray(want).T, states, sim)
+        np.testing.assert_array_equal(np.asarray(acts)[clear], np.asarray(expect)[clear])
+        assert len(set(np.asarray(jnp.argmax(want, axis=-1)).tolist())) > 1  # more than one action taken

@@ -65,7 +65,8 @@ def run(args) -> None:
     lanes = meta["population_size"] * trainer.cfg.trials
     print(f"neat: {meta['population_size']} genomes x {trainer.cfg.trials} start states ({lanes} lanes), the trained "
           "4v3 population of kx/bench/data/policies/neat_4v3.npz", flush=True)
-    print(f"ppo: {pcfg.num_envs} episodes x {pcfg.num_steps} SMDP steps an update ({steps_per_update} steps), "
+    unit = "world iterations" if pcfg.rollout == "iteration" else "SMDP steps"
+    print(f"ppo: {pcfg.num_envs} episodes x {pcfg.num_steps} {unit} an update ({steps_per_update} steps), "
           f"{pcfg.update_epochs} epochs of {pcfg.num_minibatches} minibatches, 2 x {pcfg.hidden} tanh units",
           flush=True)
 

@@ -103,6 +103,11 @@ def _init_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayP
     return jax.jit(lambda key, params: ppo.init(key, cfg, ppo.environment(cfg, sim), sim_params, params))
 
 
+def _steps(c: ppo.PPOConfig) -> str:
+    """What a rollout's ``num_steps`` count (:data:`kx.ppo.ROLLOUTS`)."""
+    return "world iterations" if c.rollout == "iteration" else "SMDP steps"
+
+
 _as_population = jax.jit(lambda params: jax.tree.map(lambda a: a[None], params))
 
 
@@ -236,7 +241,7 @@ class PPOEncoding(Encoding):
     def describe(self) -> str:
         c = self.ppo
         return (f"ppo (fixed layout: 13 inputs, 3 actions; actor and critic of 2 x {c.hidden} tanh units; "
-                f"{c.num_envs} episodes x {c.num_steps} SMDP steps an update; {self.block} training episodes a "
+                f"{c.num_envs} episodes x {c.num_steps} {_steps(c)} an update; {self.block} training episodes a "
                 f"generation)")
 
     def progress(self, row) -> str:
@@ -293,5 +298,5 @@ class EntityEncoding(PPOEncoding):
         mix = f", with {', '.join(c.mix)} episodes in every batch" if c.mix else ""
         return (f"ppo_entity (entity tokens of the holder, {self.sim.n_keepers - 1} teammates and "
                 f"{self.sim.n_takers} takers; {c.blocks} self-attention block(s) of {c.heads} heads, {c.hidden} "
-                f"units; a hold logit and a pass logit per teammate; {c.num_envs} episodes x {c.num_steps} SMDP "
-                f"steps an update{mix}; {self.block} training episodes a generation)")
+                f"units; a hold logit and a pass logit per teammate; {c.num_envs} episodes x {c.num_steps} "
+                f"{_steps(c)} an update{mix}; {self.block} training episodes a generation)")
