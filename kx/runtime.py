@@ -1,5 +1,6 @@
 """Process set-up for kx's command-line entry points (call before JAX is first used).
 
+* OpenBLAS's kernels pinned on CPUs with AVX-512 (:func:`pin_openblas_kernels`), before scipy loads them.
 * One XLA host device per CPU core, so that :func:`kx.sim.evaluate.evaluate` can split episode lanes
   over the cores (XLA runs one device's loop on one thread at a time). Has no effect on a GPU
   platform's devices, and none once JAX has initialised its backends.
@@ -15,8 +16,56 @@ import pathlib
 import time
 import warnings
 
+#: the x86 extensions OpenBLAS's SkylakeX kernels need
+AVX512_KERNELS = frozenset({"avx512f", "avx512cd", "avx512bw", "avx512dq", "avx512vl"})
+
+
+def cpu_flags() -> set[str]:
+    """The CPU's feature flags (/proc/cpuinfo's first ``flags`` line; empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return set(next(line for line in f if line.startswith("flags")).split())
+    except (OSError, StopIteration):
+        return set()
+
+
+def pin_openblas_kernels(announce: bool = True) -> str | None:
+    """Pins the OpenBLAS kernels of JAX's CPU linear algebra on CPUs with AVX-512, before they load; returns
+    the kernel set pinned (None: the environment's kept).
+
+    jaxlib's CPU eigendecomposition (CMA-ES's covariance update, evosax) calls LAPACK through scipy's
+    OpenBLAS, whose kernels round float32 differently from one kernel set to another. On AVX-512 CPUs
+    OpenBLAS's own choices (SkylakeX, Cooperlake, SapphireRapids) give the same CMA-ES runs, and kx's
+    committed results were made with them; but an environment may force another set: a machine of this
+    project (2026-12-05) exports ``OPENBLAS_CORETYPE=Haswell``, and there every CMA-ES run parted from its
+    committed row at its first update. So kx's command-line entry points (:func:`setup`) set
+    ``OPENBLAS_CORETYPE=SkylakeX`` on every CPU with AVX-512, and say so in one line on stderr (``announce``)
+    when that overrides a value the environment set. ``KX_OPENBLAS_CORETYPE`` chooses instead: a kernel set's
+    name, or ``inherit`` to keep the environment's. ``import kx`` changes nothing; a program of your own calls
+    this before it imports scipy (once scipy has loaded its OpenBLAS, the variable no longer matters, and
+    this says so)."""
+    import sys
+
+    want = os.environ.get("KX_OPENBLAS_CORETYPE")
+    if want is None:
+        if not AVX512_KERNELS <= cpu_flags():
+            return None
+        want = "SkylakeX"
+    if want == "inherit":
+        return None
+    had = os.environ.get("OPENBLAS_CORETYPE")
+    os.environ["OPENBLAS_CORETYPE"] = want
+    if announce and had is not None and had != want:
+        print(f"kx: OPENBLAS_CORETYPE={had} overridden by {want}, the kernels kx's results were made with "
+              "(KX_OPENBLAS_CORETYPE=inherit keeps yours)", file=sys.stderr)
+    if announce and any(m == "scipy.linalg" or m.startswith("scipy.linalg.") for m in sys.modules) and had != want:
+        print("kx: scipy's OpenBLAS had already loaded: OPENBLAS_CORETYPE no longer changes its kernels",
+              file=sys.stderr)
+    return want
+
 
 def setup(host_devices: int | None = None) -> None:
+    pin_openblas_kernels()
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
         n = host_devices or os.cpu_count() or 1

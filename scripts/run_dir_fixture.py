@@ -42,9 +42,9 @@ RUNS = {
 
 def cpu_features() -> list[str]:
     """The CPU's vector extensions that XLA CPU may use (from /proc/cpuinfo; empty where it is missing)."""
-    import kx
+    from kx import runtime
 
-    return sorted(f for f in kx._cpu_flags() if f.startswith(("avx", "fma", "sse4")))
+    return sorted(f for f in runtime.cpu_flags() if f.startswith(("avx", "fma", "sse4")))
 
 
 #: the extensions that decide how XLA CPU rounds float32 (vector width, fused multiply-add); the others

@@ -1,5 +1,11 @@
 import os
 
+from kx import runtime
+
+# the suite's processes run with the OpenBLAS kernels kx's command-line processes pin (kx.runtime.setup), before
+# scipy loads them: CMA-ES's committed rows are compared here; its kx.train subprocesses pin their own
+runtime.pin_openblas_kernels(announce=False)
+
 os.environ.setdefault("KX_CACHE_DIR", os.path.join(os.path.dirname(__file__), "..", ".venv", "jax-cache"))
 # every program is cached, however fast it compiled: the two workers and every kx.train subprocess of
 # the suite share what one of them compiled first
