@@ -190,18 +190,19 @@ class KeepAway:
     def _restart(self, key, nxt: "BatchState", reward, done, info, params: KeepAwayParams, resets: int):
         """``nxt`` with the episodes that ended (``done``) replaced by new ones (:meth:`step_batch`'s rule)."""
         k_starts, k_words = jax.random.split(key)
-        # the start states are drawn only when an episode has ended (a start costs about 50 iterations; the
-        # same states either way: unused ones are never read)
-        fresh = jax.lax.cond(done.any(), lambda k: self.reset_batch(k, resets, params)[1],
-                             lambda k: jax.tree.map(jnp.zeros_like,
-                                                    jax.eval_shape(lambda: self.reset_batch(k, resets, params)[1])),
-                             k_starts)
         n = done.shape[0]
-        rank = jnp.cumsum(done.astype(jnp.int32)) - 1  # the i-th episode to end takes start i (mod resets)
-        take = jnp.where(done, rank % resets, 0)
-        words = jax.random.bits(k_words, (n,), jnp.uint32)
-        world = jax.tree.map(lambda f, w: jnp.where(done, jnp.take(f, take, axis=-1), w), fresh.world, nxt.world)
-        out = BatchState(world=world, noise_word=jnp.where(done, words, nxt.noise_word))
+
+        def replaced(nxt):
+            _, fresh = self.reset_batch(k_starts, resets, params)
+            rank = jnp.cumsum(done.astype(jnp.int32)) - 1  # the i-th episode to end takes start i (mod resets)
+            take = jnp.where(done, rank % resets, 0)
+            words = jax.random.bits(k_words, (n,), jnp.uint32)
+            world = jax.tree.map(lambda f, w: jnp.where(done, jnp.take(f, take, axis=-1), w), fresh.world, nxt.world)
+            return BatchState(world=world, noise_word=jnp.where(done, words, nxt.noise_word))
+
+        # only when an episode has ended are start states drawn and put in (a start costs about 50 iterations);
+        # otherwise every episode goes on as it is, which is what the replacement would leave
+        out = jax.lax.cond(done.any(), replaced, lambda nxt: nxt, nxt)
         info = dict(info, shared_starts=jnp.maximum(done.sum() - resets, 0))
         return self.observation_batch(out), out, reward, done, info
 
