@@ -331,3 +331,50 @@ def test_reset_batch_compiled_equals_reset_one_episode_at_a_time(task):
             one = env.reset(k, PARAMS, cfg)
         for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(one), strict=True):
             np.testing.assert_array_equal(np.asarray(a)[..., i], np.asarray(b))
+
+
+def test_top_k_first_orders_equal_values_by_index_as_a_stable_sort_does():
+    """The start states' and the mutations' selection (kx.sim.ops.top_k_first): the k largest, equal values in
+    index order, which is a stable sort's order on every backend (and what XLA CPU's top_k gives here)."""
+    from kx.sim.ops import top_k_first
+
+    rng = np.random.default_rng(3)
+    pick = jax.jit(top_k_first, static_argnums=1)
+    for n, k, levels in [(400, 3, 4), (400, 8, 2), (40, 6, 40), (9, 9, 3)]:
+        for _ in range(50):
+            v = rng.integers(0, levels, n).astype(np.float32) - 1.0  # many equal values
+            want = np.argsort(-v, kind="stable")[:k]
+            got = np.asarray(pick(jnp.asarray(v), k))
+            np.testing.assert_array_equal(got, want)
+            np.testing.assert_array_equal(got, np.asarray(jax.lax.top_k(jnp.asarray(v), k)[1]))
+    assert pick(jnp.zeros(5), 3).dtype == jnp.int32
+
+
+@pytest.mark.parametrize("task", ["3v2", "6v4"])
+def test_reset_is_the_plain_numpy_reference_on_thousands_of_states(task):
+    """``env.reset``, batched, against a NumPy reading of its rule from the same random draws: keepers on the
+    cells of the k largest uniform scores (equal scores in cell order), the ball with a random keeper, takers on
+    the largest scores of the cells neither a keeper's nor within ``start_clearance`` king moves of the ball."""
+    config, params = KeepAwayConfig.from_task(task), KeepAwayParams()
+    w, k, t, n = config.field_size, config.n_keepers, config.n_takers, 3000
+    key = jax.random.key(11)
+    batch = env.reset_batch(key, n, params, config)
+    keys = jax.random.split(key, n)
+    parts = jax.vmap(lambda kk: jax.random.split(kk, 3))(keys)
+    holders = np.asarray(jax.vmap(lambda kk: jax.random.randint(kk, (), 0, k, dtype=jnp.int32))(parts[:, 0]))
+    u_keep = np.asarray(jax.vmap(lambda kk: jax.random.uniform(kk, (w * w,)))(parts[:, 1]))
+    u_take = np.asarray(jax.vmap(lambda kk: jax.random.uniform(kk, (w * w,)))(parts[:, 2]))
+    cx, cy = np.arange(w * w) % w, np.arange(w * w) // w
+    got = {f: np.asarray(getattr(batch, f)) for f in ("keeper_x", "keeper_y", "taker_x", "taker_y", "holder",
+                                                      "ball_x", "ball_y", "t", "done")}
+    for i in range(n):
+        keepers = np.argsort(-u_keep[i], kind="stable")[:k]
+        h = holders[i]
+        hx, hy = keepers[h] % w, keepers[h] // w
+        near = np.maximum(abs(cx - hx), abs(cy - hy)) <= params.start_clearance
+        forbidden = np.isin(np.arange(w * w), keepers) | near
+        takers = np.argsort(-np.where(forbidden, -1.0, u_take[i]), kind="stable")[:t]
+        assert list(got["keeper_x"][:, i]) == list(keepers % w) and list(got["keeper_y"][:, i]) == list(keepers // w)
+        assert list(got["taker_x"][:, i]) == list(takers % w) and list(got["taker_y"][:, i]) == list(takers // w)
+        assert (got["holder"][i], got["ball_x"][i], got["ball_y"][i]) == (h, hx, hy)
+    assert not got["t"].any() and not got["done"].any()

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from kx.neat.types import BIAS, EMPTY, HIDDEN, INPUT, MAX_SELECT_COUNT, OUTPUT, Genome, NEATConfig, NEATParams
+from kx.sim.ops import top_k_first
 
 I32 = jnp.int32
 
@@ -231,7 +232,7 @@ def mutate_weights_hyperneat(key: jax.Array, g: Genome, params: NEATParams, gene
     # weight_select_count genes: the smallest scores, taken by index (ties cannot pick a third)
     c = g.conn_valid.shape[0]
     k = min(MAX_SELECT_COUNT, c)
-    _, idx = jax.lax.top_k(-jnp.where(g.conn_valid, unit, 2.0), k)
+    idx = top_k_first(-jnp.where(g.conn_valid, unit, 2.0), k)  # equal scores in gene order, on every backend
     by_count = jnp.zeros((c,), bool).at[idx].set(jnp.arange(k) < params.weight_select_count)
     chosen = g.conn_valid & jnp.where(kind == 0, True, jnp.where(kind == 1, unit < params.weight_select_fraction,
                                                                    by_count))

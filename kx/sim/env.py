@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from kx.sim import geometry as geo
-from kx.sim.ops import any0, argmin0, col, fenced, pick  # noqa: F401 (also kx.sim.env's names)
+from kx.sim.ops import any0, argmin0, col, fenced, pick, top_k_first  # noqa: F401 (also kx.sim.env's names)
 from kx.sim.types import (
     DIST_SCALE,
     MAX_NOISE_FIELD,
@@ -109,15 +109,15 @@ def reset(key: jax.Array, params: KeepAwayParams, config: KeepAwayConfig) -> Sta
     k_hold, k_keep, k_take = jax.random.split(key, 3)
     cells = jnp.arange(w * w, dtype=jnp.int32)
     cx, cy = cells % w, cells // w
-    # Uniform distinct cells: the top-k of i.i.d. uniform scores.
-    keeper_cells = jax.lax.top_k(jax.random.uniform(k_keep, (w * w,)), k)[1].astype(jnp.int32)
+    # Uniform distinct cells: the top-k of i.i.d. uniform scores (equal scores in cell order, on every backend)
+    keeper_cells = top_k_first(jax.random.uniform(k_keep, (w * w,)), k)
     kx, ky = keeper_cells % w, keeper_cells // w
     holder = jax.random.randint(k_hold, (), 0, k, dtype=jnp.int32)
     hx, hy = kx[holder], ky[holder]
     taken = jnp.zeros(w * w, bool).at[keeper_cells].set(True)
     forbidden = taken | (geo.cheb(cx, cy, hx, hy) <= params.start_clearance)
     scores = jnp.where(forbidden, -1.0, jax.random.uniform(k_take, (w * w,)))
-    taker_cells = jax.lax.top_k(scores, t)[1].astype(jnp.int32)
+    taker_cells = top_k_first(scores, t)
     zero = jnp.zeros((), jnp.int32)
     return State(
         keeper_x=kx, keeper_y=ky, taker_x=taker_cells % w, taker_y=taker_cells // w,

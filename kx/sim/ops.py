@@ -72,3 +72,21 @@ def fenced(fn: Callable[..., Any], *args: Any) -> Any:
     taken = jax_core.jaxpr_as_fun(closed)
     never = lambda *_: [jnp.zeros(s.shape, s.dtype) for s in jax.tree.leaves(shapes)]  # noqa: E731
     return jax.tree.unflatten(out_tree, jax.lax.cond(pred, taken, never, *jax.tree.leaves(args)))
+
+
+def top_k_first(values: jax.Array, k: int) -> jax.Array:
+    """The indices (int32 ``[k]``) of the ``k`` largest of ``values [n]``, largest first, equal values in index
+    order: ``argsort(-values, stable=True)[:k]``, as ``jax.lax.top_k`` gives on CPU, but on every backend.
+
+    ``top_k`` leaves the order of equal values to the backend, and on GPUs XLA routes a small ``k`` to kernels
+    of its own whose order of equal values is not defined; ``argmax`` breaks ties to the lower index on every
+    backend. So: ``k`` rounds of ``argmax``, each taking its winner out (``-inf``). For the handful that the
+    start states and the mutations draw (``k`` up to 8 of a few hundred), as cheap as ``top_k``. ``values`` must
+    hold no NaN and, unless ``k`` is at most the count of entries above ``-inf``, no ``-inf``."""
+    out = []
+    x = values
+    for _ in range(k):
+        i = jnp.argmax(x).astype(jnp.int32)
+        out.append(i)
+        x = x.at[i].set(-jnp.inf)
+    return jnp.stack(out)
