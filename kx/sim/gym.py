@@ -26,8 +26,10 @@ runs every episode's iterations until the slowest one reaches its decision. :met
 and :meth:`KeepAway.step_batch` play ``n`` episodes batch-last with the same rules (a test steps both with
 the same decisions and gets the same worlds): each episode iterates until its own next decision, the
 others wait, unchanged (``python -m kx.bench ppo``: an SMDP step of 1024 4v3 episodes holding the ball,
-10.1 us an episode vmapped against 0.78 us batched, 2026-12-03). A start state costs about 50
-iterations (5.7 us: top-k of uniform scores over the field's cells), so ``step_batch`` draws ``resets``
+10.1 us an episode vmapped against 0.78 us batched, 2026-12-03). A start state costs about 50-100
+iterations (the k largest of uniform scores over the field's cells, :func:`kx.sim.ops.top_k_first`: 9 us with
+``lax.top_k``, 15 us with the selection that orders ties alike on every backend, 4v3, 2026-12-06, a shared
+2-core machine), so ``step_batch`` draws ``resets``
 start states per step rather than one per episode (Craftax's "optimistic resets", Matthews et al. 2024):
 the episodes that end in a step take them in order, each with a noise word of its own; should more end
 in one step than there are starts, the later ones share the earlier ones' starts
