@@ -82,7 +82,8 @@ def novelty(behaviour: jax.Array, archive: Archive, k: int) -> jax.Array:
     kk = min(k, p + cap - 1)  # static: at most every other vector
     if kk <= 0:
         return jnp.zeros((p,), jnp.float32)
-    nearest = -jax.lax.top_k(-jnp.where(valid, dist, jnp.inf), kk)[0]  # [P, kk] ascending
+    # [P, kk] ascending; only the values are read, so however a backend orders equal distances, they are the same
+    nearest = -jax.lax.top_k(-jnp.where(valid, dist, jnp.inf), kk)[0]
     n_valid = jnp.minimum(p - 1 + archive.size, kk)  # the same for every row
     used = jnp.arange(kk) < n_valid
     total = jnp.sum(jnp.where(used[None, :], nearest, 0.0), axis=1)
