@@ -231,3 +231,68 @@ def test_iterating_one_world_iteration_at_a_time_plays_the_smdp_steps():
     its = np.asarray(info["iterations"])
     waiting = np.asarray(ENV.deciding(mid))
     assert (its[waiting] == 0).all() and (its[~waiting] >= 1).all() and len(set(its[~waiting].tolist())) > 1
+
+
+def test_a_training_loop_written_for_gymnax_runs_on_it_unchanged():
+    """A small policy-gradient loop written against gymnax's interface alone (no kx call but the constructor):
+    ``default_params``, ``action_space``/``observation_space``, ``reset`` and ``step`` vmapped, auto-reset,
+    ``info["iterations"]`` for the SMDP discount. Its observations lie in the space, its episodes restart once
+    ended, the parameters move, and an episode's rewards add up to its fitness; a time limit reads as
+    truncated, not terminated."""
+    import optax
+
+    short = KeepAwayParams(kick_noise_deg=10.0, max_iterations=60)
+    envx = gym.KeepAway(CFG)
+    params = envx.default_params.replace(max_iterations=short.max_iterations)
+    assert int(params.max_steps_in_episode) == 60 and envx.name == "KeepAway-3v2"
+    act_space, obs_space = envx.action_space(params), envx.observation_space(params)
+    n, steps, gamma = 16, 30, 0.99
+    reset = jax.vmap(envx.reset, in_axes=(0, None))
+    step = jax.vmap(envx.step, in_axes=(0, 0, 0, None))
+    obs, state = reset(jax.random.split(jax.random.key(0), n), params)
+    w = jnp.zeros((obs_space.shape[0], act_space.n))
+    opt = optax.adam(0.05)
+    opt_state = opt.init(w)
+
+    @jax.jit
+    def rollout(w, obs, state, key):
+        def body(carry, k):
+            obs, state = carry
+            k_act, k_env = jax.random.split(k)
+            a = jax.random.categorical(k_act, obs @ w)
+            obs2, state2, r, done, info = step(jax.random.split(k_env, n), state, a, params)
+            return (obs2, state2), (obs, a, r, done, info["iterations"], info["truncated"], state2.world.t)
+        return jax.lax.scan(body, (obs, state), jax.random.split(key, steps))
+
+    def loss(w, o, a, g):
+        logp = jax.nn.log_softmax(o @ w)
+        return -(jnp.take_along_axis(logp, a[..., None], -1)[..., 0] * g).mean()
+
+    ended = truncated = 0
+    for u in range(3):
+        (obs, state), (o, a, r, d, its, trunc, t_next) = rollout(w, obs, state, jax.random.key(10 + u))
+        assert bool(jax.vmap(jax.vmap(obs_space.contains))(o).all()) and bool(act_space.contains(a).all())
+        # after an end the next state is a fresh episode's (auto-reset)
+        assert bool((jnp.where(d, t_next, 0) == 0).all())
+        ended += int(d.sum())
+        truncated += int(trunc.sum())
+
+        def back(g, x):  # discounted returns to go, a step discounted by gamma ** its iterations
+            r_t, d_t, it = x
+            g = r_t + jnp.where(d_t, 0.0, gamma ** it.astype(jnp.float32) * g)
+            return g, g
+
+        _, g = jax.lax.scan(back, jnp.zeros(n), (r * 100, d, its), reverse=True)
+        grads = jax.grad(loss)(w, o, a, g - g.mean())
+        upd, opt_state = opt.update(grads, opt_state)
+        w = optax.apply_updates(w, upd)
+    assert ended > 0 and truncated > 0 and bool(jnp.isfinite(w).all()) and float(jnp.abs(w).sum()) > 0
+    # one episode without auto-reset: its rewards add up to its fitness
+    o1, s1 = envx.reset(jax.random.key(5), params)
+    step1 = jax.jit(envx.step_env)
+    total, done, info = 0.0, False, {}
+    while not done:
+        o1, s1, r1, d1, info = step1(jax.random.key(0), s1, jnp.int32(0), params)
+        total, done = total + float(r1), bool(d1)
+    assert total == pytest.approx(float(env.episode_stats(s1.world, params, CFG).fitness), abs=1e-6)
+    assert bool(info["terminated"]) != bool(info["truncated"]) and float(info["discount"]) == 0.0

@@ -1,9 +1,20 @@
 """Keep-away as a gymnax-style environment: one episode, functional, vmapped at the call site.
 
     env = KeepAway(KeepAwayConfig(n_keepers=4, n_takers=3))   # any task (4v3 here)
-    params = env.default_params
+    params = env.default_params                    # optional, as in gymnax
     obs, state = env.reset(key, params)            # obs [13]
     obs, state, reward, done, info = env.step(key, state, action, params)
+    env.action_space(params), env.observation_space(params)   # Discrete(3), Box(0, 1, (13,))
+
+gymnax's interface (its ``Environment``: ``reset``, ``step`` with auto-reset, ``step_env``, ``default_params``,
+``name``, ``num_actions``, ``action_space``, ``observation_space``, ``discount``; gymnax's own spaces where gymnax
+is installed, objects with the same fields otherwise), so a script written for gymnax runs on it unchanged.
+``step`` returns gymnax's five values ``(obs, state, reward, done, info)``; ``info["terminated"]`` (the ball
+lost) and ``info["truncated"]`` (``max_iterations`` reached with the ball kept: not a loss) tell the two ends
+apart, for a client that bootstraps through a time limit. **An SMDP caveat:** a step spans a variable number of
+world iterations (``info["iterations"]``: one while the holder holds, the pass's flight after a kick), and
+kx's learners discount a step by ``gamma ** info["iterations"]``; a generic script that discounts each step by
+``gamma`` optimises another objective, which favours passing (a pass's flight is discounted as one step).
 
 The agent is the keeper with the ball, as in RoboCup keep-away, where only the holder's choice is
 learned: its actions are those of NEAT's fixed layout, ``0`` hold, ``1`` pass to the nearest teammate,
@@ -49,6 +60,37 @@ from kx.sim.types import KeepAwayConfig, KeepAwayParams, Reason, State
 N_ACTIONS = 3  # hold, pass to the nearest teammate, to the second nearest (the fixed layout's outputs)
 
 
+try:  # gymnax's own spaces where gymnax is installed; otherwise objects with the same fields and methods
+    from gymnax.environments.spaces import Box, Discrete
+except ImportError:  # pragma: no cover - exercised where gymnax is absent (it is not a dependency of kx)
+
+    class Discrete:
+        """gymnax's ``spaces.Discrete``: the integers ``0 .. num_categories - 1``."""
+
+        def __init__(self, num_categories: int):
+            self.num_categories = self.n = int(num_categories)
+            self.shape = ()
+            self.dtype = jnp.int32
+
+        def sample(self, rng: jax.Array) -> jax.Array:
+            return jax.random.randint(rng, self.shape, 0, self.n).astype(self.dtype)
+
+        def contains(self, x) -> jax.Array:
+            return jnp.logical_and(x >= 0, x < self.n)
+
+    class Box:
+        """gymnax's ``spaces.Box``: arrays of ``shape`` between ``low`` and ``high``."""
+
+        def __init__(self, low, high, shape: tuple, dtype=jnp.float32):
+            self.low, self.high, self.shape, self.dtype = low, high, tuple(shape), dtype
+
+        def sample(self, rng: jax.Array) -> jax.Array:
+            return jax.random.uniform(rng, self.shape, minval=self.low, maxval=self.high).astype(self.dtype)
+
+        def contains(self, x) -> jax.Array:
+            return jnp.logical_and(jnp.all(x >= self.low), jnp.all(x <= self.high))
+
+
 @struct.dataclass
 class EnvState:
     world: State
@@ -78,6 +120,27 @@ class KeepAway:
         return KeepAwayParams()
 
     @property
+    def name(self) -> str:
+        return f"KeepAway-{self.config.name}"
+
+    def action_space(self, params: KeepAwayParams | None = None) -> "Discrete":
+        """gymnax's ``action_space``: ``num_actions`` discrete actions."""
+        return Discrete(self.num_actions)
+
+    def observation_space(self, params: KeepAwayParams | None = None) -> "Box":
+        """gymnax's ``observation_space``: the fixed layout's 13 inputs, each in [0, 1] (distances over the
+        field's diagonal, angles over pi). The entity observation is a dict of tokens whose sizes follow the
+        task: it has no single box."""
+        if self.kind != "fixed":
+            raise ValueError("observation_space: the entity observation is a dict of tokens (kx.sim.entities)")
+        return Box(0.0, 1.0, (self.observation_size,), jnp.float32)
+
+    def discount(self, state: EnvState, params: KeepAwayParams | None = None) -> jax.Array:
+        """gymnax's ``discount``: 0 once the episode has ended, else 1. A step spans ``info["iterations"]``
+        iterations of the world: discount it by ``gamma ** info["iterations"]`` to learn kx's objective."""
+        return jnp.where(state.world.done, 0.0, 1.0)
+
+    @property
     def num_actions(self) -> int:
         return N_ACTIONS if self.kind == "fixed" else entities.n_actions(self.config)
 
@@ -92,7 +155,8 @@ class KeepAway:
             return entities.tokens(state.world, self.config)
         return observe.fixed_obs(state.world, self.config)
 
-    def reset(self, key: jax.Array, params: KeepAwayParams) -> tuple[jax.Array, EnvState]:
+    def reset(self, key: jax.Array, params: KeepAwayParams | None = None) -> tuple[jax.Array, EnvState]:
+        params = self.default_params if params is None else params
         k_start, k_noise = jax.random.split(key)
         world = env.reset(k_start, params, self.config)
         state = EnvState(world=world, noise_word=jax.random.bits(k_noise, (), jnp.uint32))
@@ -109,9 +173,13 @@ class KeepAway:
         return pick(order, jnp.clip(action, 0, N_ACTIONS - 1).astype(jnp.int32))
 
     def step_env(self, key: jax.Array, state: EnvState, action: jax.Array,
-                 params: KeepAwayParams) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
-        """The holder's decision ``action``, then the world until the next decision or the end."""
+                 params: KeepAwayParams | None = None) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
+        """The holder's decision ``action``, then the world until the next decision or the end. ``info``:
+        ``iterations`` (the world's iterations the step spanned), ``terminated`` (the ball lost),
+        ``truncated`` (the episode reached ``max_iterations`` with the ball kept), ``discount``
+        (:meth:`discount`), ``reason``, ``passes``."""
         del key  # the kick noise is the episode's (its noise word and the iteration)
+        params = self.default_params if params is None else params
         s_max = env.noise_limit(params.kick_noise_deg)
         word = state.noise_word
 
@@ -123,12 +191,18 @@ class KeepAway:
                                    lambda w: iterate(w, jnp.full_like(w.holder, -1)), world)
         reward = survived(world, params) - survived(state.world, params)
         nxt = state.replace(world=world)
-        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
+        truncated = world.reason == Reason.TIME_LIMIT
+        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes,
+                "terminated": world.done & ~truncated, "truncated": world.done & truncated,
+                "discount": self.discount(nxt, params)}
         return self.observation(nxt), nxt, reward, world.done, info
 
     def step(self, key: jax.Array, state: EnvState, action: jax.Array,
-             params: KeepAwayParams) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
-        """:meth:`step_env`, and a new episode (``reset(key)``) in place of a finished one."""
+             params: KeepAwayParams | None = None) -> tuple[jax.Array, EnvState, jax.Array, jax.Array, dict]:
+        """:meth:`step_env`, and a new episode (``reset(key)``) in place of a finished one: gymnax's
+        ``(obs, state, reward, done, info)``, ``done`` either end (``info["terminated"]`` or
+        ``info["truncated"]`` says which)."""
+        params = self.default_params if params is None else params
         obs, nxt, reward, done, info = self.step_env(key, state, action, params)
         obs_reset, state_reset = self.reset(key, params)
         pick = lambda a, b: jax.lax.select(done, a, b)  # noqa: E731

@@ -155,6 +155,12 @@ class KeepAwayParams:
     taker_reaction_delay: int | jax.Array = 1
     tackle_iterations: int | jax.Array = 3
 
+    @property
+    def max_steps_in_episode(self):
+        """gymnax's name for an episode's limit: ``max_iterations`` (iterations of the world; an SMDP step of
+        :mod:`kx.sim.gym` spans one or more)."""
+        return self.max_iterations
+
     def validate(self) -> "KeepAwayParams":
         """Raises :class:`KeepAwayError` naming the field if a concrete value is out of range."""
         try:
