@@ -260,3 +260,10 @@ def test_scripts_import_the_installed_kx_without_touching_sys_path(script, tmp_p
     out = subprocess.run([sys.executable, str(script), "--help"], capture_output=True, text=True, cwd=tmp_path,
                          timeout=120)
     assert out.returncode == 0 and "usage:" in out.stdout, out.stderr
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.py")), ids=lambda p: p.name)
+def test_every_shipped_config_loads_and_validates(path):
+    """Each config file of configs/ is one a user can run as it is: its fields load and pass validation."""
+    exp = cfg_lib.validate(cfg_lib.load(str(path)))
+    assert exp.encoding.describe()

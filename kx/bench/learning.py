@@ -64,7 +64,8 @@ def run(args) -> None:
 
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py",
-               "PPO": "configs/ppo_3v2.py", "PPO-entity": "configs/ppo_entity_3v2.py"}
+               "PPO": "configs/ppo_3v2.py", "PPO-iteration": "configs/ppo_3v2_iteration.py",
+               "PPO-entity": "configs/ppo_entity_3v2.py"}
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not chosen or any(m not in configs for m in chosen):
         raise SystemExit(f"--methods: allowed a comma-separated subset of {tuple(configs)}, got {args.methods!r}")
@@ -132,7 +133,7 @@ def run(args) -> None:
         hyper, neat = mean["HyperNEAT"], mean["NEAT"]
         print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, "
               f"{hyper / neat:.2f}x NEAT)")
-    for name in ("PPO", "PPO-entity"):
+    for name in ("PPO", "PPO-iteration", "PPO-entity"):
         if name in mean and "NEAT" in mean:
             print(f"{name}: {mean[name]:.4f} fitness ({mean[name] / test['heuristic']:.1f}x the heuristic, "
                   f"{mean[name] / mean['NEAT']:.2f}x NEAT)")

@@ -1,0 +1,19 @@
+"""PPO in 3v2 with the NEAT source run's budget (90,000 episodes), in the iteration rollout's shape: 512 episodes
+stepped one world iteration at a time (16 a rollout), the episodes at a decision acting and learned from, 2 epochs
+of 8 minibatches, 2 x 32 tanh units (docs/benchmarks.md, "Levers for PPO's wall time": half the old shape's cost
+a decision; seeds 0 and 1 gave 0.754 and 0.704 on the test states). ``python -m kx.bench learning --methods
+NEAT,PPO-iteration`` times it against NEAT in one process."""
+
+from kx.evolve.config import base_config
+
+
+def get_config():
+    c = base_config("ppo")
+    c.ppo.rollout = "iteration"
+    c.ppo.num_envs = 512
+    c.ppo.num_steps = 16
+    c.ppo.resets = 32
+    c.ppo.hidden = 32
+    c.ppo.update_epochs = 2
+    c.ppo.num_minibatches = 8
+    return c
