@@ -460,9 +460,10 @@ def make_land(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
 
 
 def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
-    """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps of the
-    ``num_envs`` episodes with the sampled policy, then ``update_epochs`` passes of PPO's clipped loss over
-    it in ``num_minibatches`` shuffled minibatches, at learning rate ``lr``. ``metrics``: the losses and
+    """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps (or world
+    iterations: :data:`ROLLOUTS`) of the ``num_envs`` episodes with the sampled policy, then ``update_epochs``
+    passes of PPO's clipped loss over its decisions in ``num_minibatches`` shuffled minibatches (fewer with
+    ``max_minibatches`` or ``learn_per_episode``), at learning rate ``lr``. ``metrics``: the losses and
     entropy (means over the minibatches), and of the rollout: the episodes that ended, the sum of their
     returns, the episodes that shared a start (:meth:`kx.sim.gym.KeepAway.step_batch`) and the world's
     iterations played."""
@@ -470,7 +471,6 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     tx = optimiser(cfg)
     n_batch = cfg.num_envs * cfg.num_steps
     rollout = make_rollout(cfg, env, env_params)
-
     land = make_land(cfg, env, env_params)
 
     def update(learner: Learner, key: jax.Array, lr: jax.Array):
