@@ -1,8 +1,8 @@
 """PPO in 3v2 with the NEAT source run's budget (90,000 episodes), in the iteration rollout's shape: 512 episodes
 stepped one world iteration at a time (16 a rollout), the episodes at a decision acting and learned from, 2 epochs
 of 8 minibatches, 2 x 32 tanh units (docs/benchmarks.md, "Levers for PPO's wall time": half the old shape's cost
-a decision; seeds 0 and 1 gave 0.754 and 0.704 on the test states). ``python -m kx.bench learning --methods
-NEAT,PPO-iteration`` times it against NEAT in one process."""
+a decision, but it learns less: seeds 0 and 1 gave 0.660 and 0.704 on the test states, the old shape 0.764 and
+0.790). ``python -m kx.bench learning --methods NEAT,PPO-iteration`` times it against NEAT in one process."""
 
 from kx.evolve.config import base_config
 
