@@ -2,7 +2,7 @@
 PY := .venv/bin/python
 STAMP := .venv/.kx-installed
 
-.PHONY: run test test-slow bench calibrate lint
+.PHONY: run test test-slow install-check bench calibrate lint
 
 $(STAMP): pyproject.toml
 	python3 -m venv .venv
@@ -16,6 +16,9 @@ run: $(STAMP)  ## the main job
 
 test: $(STAMP)  ## the default test suite (what CI runs)
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder
+
+install-check: $(STAMP)  ## kx as a wheel in a fresh environment outside the checkout: the main job and a protocol run
+	.ci/install-check $(PY)
 
 test-slow: $(STAMP)  ## the long tests
 	$(PY) -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder -m slow

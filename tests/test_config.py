@@ -267,3 +267,32 @@ def test_every_shipped_config_loads_and_validates(path):
     """Each config file of configs/ is one a user can run as it is: its fields load and pass validation."""
     exp = cfg_lib.validate(cfg_lib.load(str(path)))
     assert exp.encoding.describe()
+
+
+def test_the_shipped_configs_are_package_data_and_configs_links_to_them():
+    """An installed kx carries its configs (kx/configs/, the package data pyproject names); a checkout's
+    configs/ is that folder, so every documented path and the package see the same files."""
+    assert cfg_lib.CONFIG_DIR == ROOT / "kx" / "configs"
+    assert (ROOT / "configs").resolve() == cfg_lib.CONFIG_DIR.resolve()
+    assert "neat_3v2.py" in cfg_lib.shipped() and len(cfg_lib.shipped()) == len(list(cfg_lib.CONFIG_DIR.glob("*.py")))
+    assert '"kx" = ["configs/*.py"]' in (ROOT / "pyproject.toml").read_text()
+
+
+def test_a_config_path_resolves_to_a_file_first_then_to_the_shipped_config_of_that_name(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a folder with no configs/, as after `pip install .`
+    for name in ("configs/neat_4v3.py", "neat_4v3.py", "neat_4v3"):
+        assert cfg_lib.resolve(name) == cfg_lib.CONFIG_DIR / "neat_4v3.py"
+    assert cfg_lib.load("configs/neat_4v3.py").task == "4v3"
+    assert cfg_lib.resolve(None) == cfg_lib.DEFAULT_CONFIG
+    # a user's own file of that name wins over the shipped one
+    (tmp_path / "configs").mkdir()
+    (tmp_path / "configs" / "neat_4v3.py").write_text(
+        "from kx.evolve.config import base_config\n\n\ndef get_config():\n    c = base_config('neat')\n"
+        "    c.task = '5v3'\n    return c\n")
+    assert cfg_lib.resolve("configs/neat_4v3.py") == pathlib.Path("configs/neat_4v3.py")
+    assert cfg_lib.load("configs/neat_4v3.py").task == "5v3"
+    # a name that is neither a file nor shipped: refused, listing what is shipped; a shipped name under
+    # another folder is not taken for the shipped config
+    for bad in ("configs/nope.py", "elsewhere/neat_4v3.py"):
+        with pytest.raises(cfg_lib.ConfigError, match=r"--config: no config file .*neat_3v2\.py"):
+            cfg_lib.resolve(bad)

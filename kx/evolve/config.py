@@ -29,7 +29,8 @@ from kx.evolve.objective import OBJECTIVES
 from kx.sim import env
 from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
 
-CONFIG_DIR = pathlib.Path(__file__).resolve().parents[2] / "configs"
+# The shipped configs: package data (kx/configs/), so an installed kx has them; a checkout's configs/ links here
+CONFIG_DIR = pathlib.Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "neat_3v2.py"
 LAYOUTS = ("fixed", "full")
 PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
@@ -184,13 +185,31 @@ def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections
     return fv.config
 
 
+def shipped() -> list[str]:
+    """The names of the configs kx ships (``neat_3v2.py`` ...)."""
+    return sorted(p.name for p in CONFIG_DIR.glob("*.py")) if CONFIG_DIR.is_dir() else []
+
+
+def resolve(path: str | pathlib.Path | None) -> pathlib.Path:
+    """The config file ``path`` names: the file itself where it exists, else the shipped config of that
+    name when ``path`` is ``configs/<name>.py``, ``<name>.py`` or ``<name>`` (so the documented
+    ``--config configs/neat_4v3.py`` works from any folder, and from an installed kx); None is the default."""
+    if path is None:
+        return DEFAULT_CONFIG
+    path = pathlib.Path(path)
+    if path.is_file():
+        return path
+    name = path.name if path.suffix == ".py" else f"{path.name}.py"
+    if path.parent in (pathlib.Path("."), pathlib.Path("configs")) and (CONFIG_DIR / name).is_file():
+        return CONFIG_DIR / name
+    raise ConfigError(f"--config: no config file {str(path)!r} (a path to a file, or one of the shipped configs, "
+                      f"as configs/<name>.py or <name>: {', '.join(shipped()) or 'none'})")
+
+
 def load(path: str | pathlib.Path | None = None, overrides=()) -> ml_collections.ConfigDict:
     """The config of file ``path`` (default ``configs/neat_3v2.py``) with ``overrides`` applied
     (``"population_size=50"``, ``"neat.add_node_prob=0.05"``), locked against new fields."""
-    path = pathlib.Path(path) if path is not None else DEFAULT_CONFIG
-    if not path.is_file():
-        known = ", ".join(sorted(p.name for p in CONFIG_DIR.glob("*.py"))) if CONFIG_DIR.is_dir() else "none"
-        raise ConfigError(f"--config: no config file {str(path)!r} (configs/ has: {known})")
+    path = resolve(path)
     spec = importlib.util.spec_from_file_location(f"kx_config_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
