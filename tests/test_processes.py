@@ -1,6 +1,8 @@
 """Several processes, one experiment (kx.processes): a tiny protocol run by two local processes gives the
 one-process run's results, checkpoints and metrics; a process killed mid-run loses nothing; the process
-files merge once, atomically; a coordinator that does not answer is a clear error, not a hang."""
+files merge once, atomically; the processes meet through files in the experiment's folder (a handshake that
+stale files cannot fool, barriers, a failed or silent process noticed), and processes that do not come are a
+clear error, not a hang."""
 
 import csv
 import os
@@ -98,17 +100,154 @@ def test_a_process_killed_mid_protocol_loses_nothing(one_process, tmp_path):
     _same_as(one_process, out)
 
 
-def test_a_coordinator_that_does_not_answer_is_a_clear_error(tmp_path):
-    import socket
-    with socket.socket() as s:  # a port nobody listens on
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+def test_processes_that_do_not_come_are_a_clear_error(tmp_path):
     t0 = time.time()
-    res = _run([*TINY, "--out", str(tmp_path / "t3"), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
-                "--process-id", "1", "--start-timeout", "2"], timeout=120)
+    res = _run([*TINY, "--out", str(tmp_path / "t3"), "--num-processes", "2", "--process-id", "1",
+                "--start-timeout", "2"], timeout=120)
     assert res.returncode == 2 and time.time() - t0 < 60
-    assert f"the coordinator at 127.0.0.1:{port} did not answer within 2 s" in res.stderr
-    assert not (tmp_path / "t3").exists()
+    assert "process 1 of 2: process 0 did not come within 2 s" in res.stderr
+    assert not list((tmp_path / "t3").glob("*.csv")) and not (tmp_path / "t3" / "runs").exists()
+    res = _run([*TINY, "--out", str(tmp_path / "t3"), "--num-processes", "2", "--process-id", "2"], timeout=120)
+    assert res.returncode == 2 and "--num-processes, --process-id: allowed an integer >= 1 and one in [0, count), " \
+                                   "got 2 and 2" in res.stderr
+
+
+def _meet(folder, count, make=None, **kw):
+    """``count`` threads that each join a Meeting in ``folder`` and pass ``make(meeting)``'s barriers; their
+    meetings and the exception each raised (None)."""
+    import threading
+
+    from kx import processes
+
+    meetings = [processes.Meeting(folder, count, i, poll_s=0.01, **kw) for i in range(count)]
+    errors = [None] * count
+
+    def body(i):
+        try:
+            meetings[i].join(timeout_s=20)
+            if make is not None:
+                make(meetings[i])
+        except Exception as e:  # noqa: BLE001  (handed to the test)
+            errors[i] = e
+
+    threads = [threading.Thread(target=body, args=(i,)) for i in range(count)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert not any(t.is_alive() for t in threads)
+    return meetings, errors
+
+
+def test_a_barrier_lets_no_process_through_before_every_process_reached_it(tmp_path):
+    import random
+
+    log, lock = [], __import__("threading").Lock()
+
+    def work(m):
+        for k in range(4):
+            time.sleep(random.Random(m.index * 10 + k).random() * 0.05)  # arrive in a different order each time
+            with lock:
+                log.append(("arrive", k, m.index))
+            m.wait(f"step {k}")
+            with lock:
+                log.append(("pass", k, m.index))
+        m.close()
+
+    meetings, errors = _meet(tmp_path, 3, work)
+    assert errors == [None] * 3 and len({m.token for m in meetings}) == 1
+    for k in range(4):  # every arrival at barrier k precedes every pass of it
+        last_arrival = max(i for i, e in enumerate(log) if e[:2] == ("arrive", k))
+        first_pass = min(i for i, e in enumerate(log) if e[:2] == ("pass", k))
+        assert last_arrival < first_pass, (k, log)
+
+
+def test_files_of_a_killed_attempt_do_not_pass_for_the_new_one(tmp_path):
+    """An attempt's meeting files stay when it is killed: its session, join and acknowledgement files, and
+    barriers every process reached. A new attempt makes a session of its own, waits at its own barriers and
+    removes the old barrier folders."""
+    from kx import processes
+
+    first, errors = _meet(tmp_path, 2, lambda m: m.wait("start"))
+    assert errors == [None, None]
+    old = first[0].token
+    assert (tmp_path / processes.MEETING_DIR / old / "0 start").is_dir()
+    # a new attempt whose process 1 has not started: process 0 must not go on with the old files
+    lone = processes.Meeting(tmp_path, 2, 0, poll_s=0.01)
+    with pytest.raises(processes.ProcessError, match=r"process 0 of 2: processes 1 did not come within 1 s"):
+        lone.join(timeout_s=1)
+    # nor may process 1 alone take the old session for its own
+    with pytest.raises(processes.ProcessError, match=r"process 1 of 2: process 0 did not come within 1 s"):
+        processes.Meeting(tmp_path, 2, 1, poll_s=0.01).join(timeout_s=1)
+    order = []
+    second, errors = _meet(tmp_path, 2, lambda m: (m.wait("start"), order.append(m.index)))
+    assert errors == [None, None] and second[0].token == second[1].token != old and sorted(order) == [0, 1]
+    assert not (tmp_path / processes.MEETING_DIR / old).exists()
+
+
+def test_a_failed_or_silent_process_stops_the_others_at_their_barrier(tmp_path):
+    from kx import processes
+
+    def fail_one(m):
+        if m.index == 1:
+            m.fail("ValueError: --runs: allowed an integer >= 1, got 0")
+            return
+        m.wait("start")
+
+    t0 = time.time()
+    _, errors = _meet(tmp_path / "a", 3, fail_one)
+    assert time.time() - t0 < 15 and errors[1] is None
+    for e in (errors[0], errors[2]):
+        assert isinstance(e, processes.ProcessError)
+        assert str(e) == "process 1 of 3 stopped: ValueError: --runs: allowed an integer >= 1, got 0"
+
+    def die_one(m):  # process 1's heartbeat stops without a word (a SIGKILL, a lost host)
+        if m.index == 1:
+            m._stop.set()
+            return
+        m.wait("start")
+
+    _, errors = _meet(tmp_path / "b", 3, die_one, heartbeat_s=0.05, dead_after_s=0.5)
+    assert [type(e).__name__ for e in errors] == ["ProcessError", "NoneType", "ProcessError"]
+    assert "process 1 of 3: no sign of life for 0.5 s" in str(errors[0])
+
+    def finish_early(m):  # a process that has finished (closed) is not taken for dead, but is missed at a barrier
+        m.wait("end")
+        if m.index != 0:
+            m.close()
+            return
+        time.sleep(0.8)  # past dead_after_s: process 1's heartbeat has stopped
+        m.wait("after")
+
+    _, errors = _meet(tmp_path / "c", 2, finish_early, heartbeat_s=0.05, dead_after_s=0.3)
+    assert errors[1] is None and isinstance(errors[0], processes.ProcessError)
+    assert str(errors[0]) == ("process 1 of 2 finished without reaching the barrier 'after' (the processes ran "
+                              "different commands?)")
+
+
+def test_the_process_count_and_id_come_from_a_launchers_environment(monkeypatch, tmp_path):
+    from kx import processes
+
+    for var in ("SLURM_PROCID", "SLURM_NTASKS", "OMPI_COMM_WORLD_RANK", "OMPI_COMM_WORLD_SIZE", "PMI_RANK", "PMI_SIZE",
+                processes.ENV_ID, processes.ENV_COUNT):
+        monkeypatch.delenv(var, raising=False)
+    assert processes.initialize(tmp_path) is processes.ALONE
+    with pytest.raises(processes.ProcessError, match=r"--distributed: no launcher's environment found \(read: SLURM"):
+        processes.initialize(tmp_path, from_launcher=True)
+    monkeypatch.setenv("OMPI_COMM_WORLD_RANK", "2")
+    monkeypatch.setenv("OMPI_COMM_WORLD_SIZE", "4")
+    assert processes.from_environment(True) == (4, 2) and processes.from_environment(False) is None
+    monkeypatch.setenv("SLURM_PROCID", "1")
+    monkeypatch.setenv("SLURM_NTASKS", "3")
+    assert processes.from_environment(True) == (3, 1)  # SLURM's first
+    monkeypatch.setenv(processes.ENV_ID, "0")
+    monkeypatch.setenv(processes.ENV_COUNT, "1")
+    assert processes.from_environment(True) == (1, 0)  # kx's own launcher's first of all
+    assert processes.initialize(tmp_path, from_launcher=True) is processes.ALONE  # a count of 1: alone
+    monkeypatch.setenv("SLURM_NTASKS", "x")
+    monkeypatch.delenv(processes.ENV_ID)
+    with pytest.raises(processes.ProcessError, match="SLURM_PROCID, SLURM_NTASKS: allowed integers, got '1', 'x'"):
+        processes.from_environment(True)
 
 
 def test_process_files_merge_once_in_the_plans_order(tmp_path):

@@ -33,12 +33,12 @@ def _processes_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--processes", type=int, default=1,
                    help="start this many local processes of the command, its runs dealt among them (testing)")
     g.add_argument("--distributed", action="store_true",
-                   help="one of the processes a cluster launcher started (SLURM's srun, mpirun, Kubernetes)")
-    g.add_argument("--coordinator", default=None, metavar="HOST:PORT", help="process 0's address (plain hosts)")
-    g.add_argument("--num-processes", type=int, default=None)
-    g.add_argument("--process-id", type=int, default=None)
+                   help="one of the processes a cluster launcher started (SLURM's srun, Open MPI's or MPICH's "
+                        "mpirun): its id and the count from the launcher's environment")
+    g.add_argument("--num-processes", type=int, default=None, help="the count (plain hosts, with --process-id)")
+    g.add_argument("--process-id", type=int, default=None, help="this process's id, 0 to count - 1")
     g.add_argument("--start-timeout", type=float, default=300.0,
-                   help="seconds to wait for the coordinator and the other processes (default 300)")
+                   help="seconds to wait for the other processes to meet in --out's folder (default 300)")
 
 
 def _without_processes(argv: list[str]) -> list[str]:
@@ -108,8 +108,6 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     from kx import processes
-    from kx.evolve.config import ConfigError
-    from kx.evolve.errors import RunError
 
     shard = processes.ALONE
     if args.command not in ("report", "confirm"):
@@ -117,19 +115,38 @@ def main(argv: list[str] | None = None) -> int:
             print(f"python -m kx.experiments {args.command}: --processes: allowed an integer >= 1, got "
                   f"{args.processes}", file=sys.stderr)
             return 2
-        if args.processes > 1 and processes.ENV_COORDINATOR not in os.environ:
-            if args.distributed or args.coordinator:
+        if args.processes > 1 and processes.ENV_ID not in os.environ:
+            if args.distributed or args.num_processes is not None or args.process_id is not None:
                 print(f"python -m kx.experiments {args.command}: --processes starts local processes; a launcher's "
-                      "(--distributed) or an explicit --coordinator start them elsewhere: use one", file=sys.stderr)
+                      "(--distributed) or explicit --num-processes and --process-id start them elsewhere: use one",
+                      file=sys.stderr)
                 return 2
             return processes.launch_local("kx.experiments", _without_processes(list(sys.argv[1:] if argv is None
                                                                                   else argv)), args.processes)
         try:
-            shard = processes.initialize(args.coordinator, args.num_processes, args.process_id, args.distributed,
+            shard = processes.initialize(args.out, args.num_processes, args.process_id, args.distributed,
                                          args.start_timeout)
         except processes.ProcessError as e:
             print(f"python -m kx.experiments {args.command}: {e}", file=sys.stderr)
             return 2
+    try:
+        status = _command(args, shard)
+    except BaseException as e:  # the others stop at their next barrier rather than wait for this process
+        if shard.meeting is not None:
+            shard.meeting.fail(f"{type(e).__name__}: {e}")
+        raise
+    if shard.meeting is not None:
+        if status:
+            shard.meeting.fail(f"exit status {status}")
+        shard.meeting.close()
+    return status
+
+
+def _command(args: argparse.Namespace, shard) -> int:
+    """The command of ``args``, in process ``shard``; its exit status."""
+    from kx.evolve.config import ConfigError
+    from kx.evolve.errors import RunError
+    from kx.processes import ProcessError
 
     try:
         if args.command == "report":
@@ -188,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
             if shard.leader:
                 print(sweep.write_report(args.out))
         return 0
-    except (ValueError, ConfigError, RunError) as e:
+    except (ValueError, ConfigError, RunError, ProcessError) as e:
         print(f"python -m kx.experiments {args.command}: {e}", file=sys.stderr)
         return 2
 
