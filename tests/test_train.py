@@ -151,6 +151,17 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
         assert int(learner.episodes) == ended[-1] and int(learner.blocks) == GENERATIONS
         assert all(e >= 48 * (g + 1) for g, e in enumerate(ended)) and ended[-1] < 48 * GENERATIONS + 16 * 16
         assert int(learner.updates) == sum(int(r["updates"]) for r in rows)
+    # what ran: one session (started after generation 0), this JAX, and HyperNEAT's implementation of its sums
+    runtime = json.loads((run_dir / "runtime.json").read_text())["sessions"]
+    assert len(runtime) == 1 and runtime[0]["after_generation"] == 0 and runtime[0]["jax"] == jax.__version__
+    if method == "hyperneat":
+        from kx import native
+        expect = "xla" if native.unavailable() else "native"
+        assert runtime[0]["decision_sums"] == expect and runtime[0]["chosen"] == "auto"
+        assert out.count("decision: sums by the ") == 1
+        assert ("sums by the native kernel" in out) == (expect == "native")
+    else:
+        assert "decision_sums" not in runtime[0] and "decision: " not in out
     # each generation's champion replayed on the validation states, next to the hand-coded policies there
     base = json.loads((run_dir / "baselines.json").read_text())
     assert base["trials"] == cfg["validation_trials"] and set(base["mean_fitness"]) == {"hold", "random", "heuristic"}

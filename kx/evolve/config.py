@@ -39,7 +39,8 @@ PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 SOURCE_RECORD = "transfer_source"
 # Fields that may change when a run is resumed (how long it runs and what it writes, not what it
 # computes); every other field must equal the checkpoint's.
-RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames")
+# hyperneat.impl: which code computes the same bits (a run may resume on a machine without the native kernel)
+RESUMABLE = ("generations", "checkpoint_every", "keep_checkpoints", "gif", "gif_frames", "hyperneat.impl")
 # How a transfer source's population seeds a run (transfer.seeding; kx.evolve.transfer)
 SEEDINGS = ("population", "champion", "half")
 
@@ -357,6 +358,7 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
 #: config fields added after runs were written with the code before them: a config.json or a checkpoint
 #: without one reads it as this value, which is what that code did (so those runs resume and seed targets)
 ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper", "novelty.behaviour": "paper",
+               "hyperneat.impl": "auto",
                **{f"{section}.{field}": value for section in ("ppo", "ppo_entity")
                   for field, value in (("rollout", "smdp"), ("max_minibatches", 0), ("learn_per_episode", 0))}}
 

@@ -162,6 +162,11 @@ class Encoding(abc.ABC):
         """One line for the run's log: the method and the shape of its policies."""
         return self.name
 
+    def implementation(self) -> dict:
+        """Which code runs the encoding's policies in this process where it has a choice (recorded in the run
+        directory's runtime.json, printed at the run's start); ``{}`` where it has none."""
+        return {}
+
     def progress(self, metrics: dict) -> str:
         """The encoding's part of the progress line."""
         return ""

@@ -74,7 +74,35 @@ __all__ = ["RunError", "RunLock", "RunState", "Trainer", "GenerationResult", "ev
            "prepare_run_dir", "restore"]
 
 
+#: the run directory's record of what ran each time the run was started or resumed
+RUNTIME_FILE = "runtime.json"
 
+
+def describe_implementation(impl: dict) -> str:
+    """One line of an encoding's :meth:`~kx.evolve.encoding.Encoding.implementation`."""
+    if impl.get("decision_sums") == "native":
+        return f"sums by the native kernel (kx.native, {impl['library']}; hyperneat.impl = {impl['chosen']!r})"
+    why = f": {impl['why_not_native']}" if impl.get("why_not_native") else ""
+    return f"sums by the compiled XLA code (hyperneat.impl = {impl['chosen']!r}{why})"
+
+
+def record_runtime(run_dir: pathlib.Path, start: int, impl: dict) -> None:
+    """Appends this session (the generation it starts after, the JAX version, backend and devices, and the
+    encoding's implementation) to ``run_dir/runtime.json``; the run's results do not depend on it (the
+    implementations give the same bits), its times do."""
+    import json
+
+    import jaxlib
+
+    path = run_dir / RUNTIME_FILE
+    try:
+        sessions = json.loads(path.read_text())["sessions"] if path.is_file() else []
+        sessions = sessions if isinstance(sessions, list) else []
+    except (OSError, ValueError, KeyError, TypeError):
+        sessions = []  # a damaged record is replaced: it holds no result
+    sessions.append({"after_generation": int(start), "jax": jax.__version__, "jaxlib": jaxlib.__version__,
+                     "backend": jax.default_backend(), "devices": jax.local_device_count(), **impl})
+    outputs.write_json(path, {"sessions": sessions})
 
 def evolve_in_memory(trainer: Trainer, log: Callable[[dict], None] | None = None) -> tuple[RunState, list[dict]]:
     """All of ``trainer``'s generations with no run directory: the final run state (its validated
@@ -330,6 +358,10 @@ def open_run(trainer: Trainer, run_dir: pathlib.Path, *, resume: bool, overwrite
         src = trainer.source
         log(f"transfer: seeded ({src.seeding}) from {src.run_dir} checkpoint {src.step} ({src.cfg.task}, "
             f"{int(src.state.generation)} generations; {src.digest[:19]}...)")
+    impl = enc.implementation()
+    if impl:
+        log(f"decision: {describe_implementation(impl)}")
+    record_runtime(run_dir, start, impl)
     baselines = trainer.validation_baselines()
     outputs.write_json(run_dir / "baselines.json", {"trials": cfg.validation_trials, "states": "validation",
                                                    "mean_fitness": baselines})

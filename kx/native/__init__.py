@@ -7,18 +7,24 @@ list of path steps and reads each weight with a scalar gather inside a vectorise
 same sums bit for bit (tests/test_native.py) at a fraction of the cost (docs/hyperneat.md, "A native
 decision").
 
-The library is built on first use, or by ``python -m kx.native`` (which ``make`` runs at set-up), into
-``kx/native/_build/``, named by a hash of its source, the compiler and its flags, jaxlib's version and the
-CPU's model and flags, so that a change of any of them builds it again; the build goes to a temporary file
-that is then renamed, so that processes starting together never load a half-written library. It compiles
-with ``-march=native`` (the machine's fused multiply-add) and ``-ffp-contract=off`` (no other operation
-fused). Where it cannot be built (no compiler: ``CXX``, default ``g++``), where ``KX_NATIVE=0``, or on
-another backend than the CPU, kx runs the compiled XLA code, which gives the same results more slowly.
+The library is built by ``python -m kx.native`` (which ``make`` runs at set-up), or on first use, into a
+per-user cache as JAX's compilation cache is (``$KX_CACHE_DIR/native``, else
+``$XDG_CACHE_HOME/kx/native``, else ``~/.cache/kx/native``), named by a hash of its source, the compiler and
+its flags, jaxlib's version and the CPU's model and flags, so that a change of any of them builds it again.
+A build holds a lock on the cache (processes starting together build it once), and goes to a temporary file
+that is then renamed, so that no process loads a half-written library. It compiles with ``-march=native``
+(the machine's fused multiply-add) and ``-ffp-contract=off`` (no other operation fused), with warnings on;
+XLA's FFI headers are included as system headers, so that their warnings do not hide kx's. Where it cannot
+be built (no compiler: ``CXX``, default ``g++``; a cache that cannot be written), where ``KX_NATIVE=0``, or on
+another backend than the CPU, kx runs the compiled XLA code, which gives the same results more slowly; a
+run's config chooses (``hyperneat.impl``: auto, xla or native), and its run directory records which ran
+(``runtime.json``).
 """
 
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import functools
 import hashlib
 import os
@@ -34,10 +40,18 @@ import jax.numpy as jnp
 import numpy as np
 
 SOURCE = pathlib.Path(__file__).with_name("bev_sums.cc")
-BUILD_DIR = pathlib.Path(__file__).with_name("_build")
-FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-std=c++17", "-shared", "-fPIC", "-Wno-attributes",
-         "-Wno-return-type")
+FLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-std=c++17", "-shared", "-fPIC", "-Wall", "-Wextra")
 TARGET = "kx_bev_sums"
+
+
+def cache_dir() -> pathlib.Path:
+    """The per-user folder of built libraries: ``$KX_CACHE_DIR/native``, else ``$XDG_CACHE_HOME/kx/native``,
+    else ``~/.cache/kx/native``."""
+    env = os.environ
+    if env.get("KX_CACHE_DIR"):
+        return pathlib.Path(env["KX_CACHE_DIR"]) / "native"
+    base = pathlib.Path(env["XDG_CACHE_HOME"]) if env.get("XDG_CACHE_HOME") else pathlib.Path.home() / ".cache"
+    return base / "kx" / "native"
 
 
 def _cpu_fingerprint() -> str:
@@ -57,30 +71,41 @@ def library_path() -> pathlib.Path:
     cxx = os.environ.get("CXX", "g++")
     key = hashlib.sha256("\0".join([SOURCE.read_text(), cxx, *FLAGS, jaxlib.__version__, _cpu_fingerprint()])
                          .encode()).hexdigest()[:16]
-    return BUILD_DIR / f"libkx_native-{key}.so"
+    return cache_dir() / f"libkx_native-{key}.so"
 
 
 def build() -> pathlib.Path:
-    """Builds the library if it is not there yet and returns its path; raises RuntimeError with the
-    compiler's message where it cannot be built."""
+    """Builds the library if it is not there yet and returns its path; raises RuntimeError saying why where
+    it cannot be built (no compiler, the compiler's message, a cache folder that cannot be written)."""
     path = library_path()
     if path.is_file():
         return path
     cxx = os.environ.get("CXX", "g++")
     if shutil.which(cxx) is None:
         raise RuntimeError(f"no C++ compiler: {cxx!r} is not on PATH (set CXX to one)")
-    BUILD_DIR.mkdir(exist_ok=True)
-    fd, tmp = tempfile.mkstemp(suffix=".so", dir=BUILD_DIR)
-    os.close(fd)
     try:
-        cmd = [cxx, *FLAGS, "-I", jax.ffi.include_dir(), str(SOURCE), "-o", tmp]
-        done = subprocess.run(cmd, capture_output=True, text=True)
-        if done.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()}")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path.parent / ".lock", "a")  # noqa: SIM115  (held for the build)
+    except OSError as e:
+        raise RuntimeError(f"the cache folder {path.parent} cannot be written ({e.strerror}; set KX_CACHE_DIR to "
+                           "another)") from None
+    with lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # another process's build of the same library: wait, then use it
+        if path.is_file():
+            return path
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=path.parent)
+        os.close(fd)
+        try:
+            cmd = [cxx, *FLAGS, "-isystem", jax.ffi.include_dir(), str(SOURCE), "-o", tmp]
+            done = subprocess.run(cmd, capture_output=True, text=True)
+            if done.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()}")
+            if done.stderr.strip():  # a warning of kx's own source: shown, never hidden
+                print(f"kx.native: the compiler warns:\n{done.stderr.strip()}", file=sys.stderr)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
     return path
 
 
@@ -128,12 +153,19 @@ def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy
                 taker_value=np.float32(observe.BEV_AUTHORS_TAKER), round_offset=np.float32(round_offset))
 
 
-def main() -> None:
+def main() -> int:
+    """``python -m kx.native``: builds the library (the set-up runs it); its path, or one line saying why not
+    and exit status 1."""
     try:
         print(build())
+        return 0
     except RuntimeError as e:
-        print(f"kx.native: not built ({e}); kx will run its compiled XLA code instead", file=sys.stderr)
+        reason = str(e).splitlines()[0] if "failed:" not in str(e) else "the compiler failed: " + " | ".join(
+            ln for ln in str(e).splitlines()[1:] if "error" in ln)[:300]
+        print(f"kx.native: not built ({reason}); kx runs its compiled XLA code instead (the same results, slower)",
+              file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

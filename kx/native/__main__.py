@@ -1,3 +1,5 @@
+import sys
+
 from kx.native import main
 
-main()
+sys.exit(main())

@@ -30,7 +30,7 @@ import numpy as np
 
 from kx.evolve.encodings.neat import NEATEncoding, check_add_links, check_capacity, learner, neat_params_fields
 from kx.evolve.errors import ConfigError, is_int, need
-from kx.hyperneat.bev import DECISIONS, bev_policy
+from kx.hyperneat.bev import DECISIONS, IMPLS, bev_policy, native_runs
 from kx.neat.activations import ACTIVATIONS
 from kx.neat.types import NEATError, capacity, initial_conns
 from kx.sim.observe import BEV_IMAGES
@@ -54,7 +54,10 @@ class HyperNEATEncoding(NEATEncoding):
                  max_hidden=ncfg.n_hidden, species_capacity=ncfg.species_capacity,
                  extra_conns=ncfg.extra_conns, extra_genes=ncfg.extra_genes,
                  max_add_links=0, resolution=20, distance_input=True, image="authors",
-                 decision="cells", substrate_activation="bipolar_sigmoid")
+                 decision="cells", substrate_activation="bipolar_sigmoid",
+                 # how the decision's sums are computed (kx.hyperneat.bev.IMPLS: the same bits whichever):
+                 # auto the native kernel (kx.native) where it runs, else the XLA code; xla or native force one
+                 impl="auto")
         return ml_collections.ConfigDict(c)
 
     @classmethod
@@ -82,11 +85,16 @@ class HyperNEATEncoding(NEATEncoding):
         need(isinstance(n["decision"], str) and n["decision"] in DECISIONS, "hyperneat.decision",
              f"one of {DECISIONS}", n["decision"])
         need(isinstance(n["distance_input"], bool), "hyperneat.distance_input", "true or false", n["distance_input"])
+        need(isinstance(n["impl"], str) and n["impl"] in IMPLS, "hyperneat.impl", f"one of {IMPLS}", n["impl"])
+        if n["impl"] == "native" and native_runs(n["image"]):
+            raise ConfigError(f"hyperneat.impl: 'native' cannot run here ({native_runs(n['image'])}); allowed "
+                              f"{IMPLS}, 'auto' or 'xla' for the XLA code (the same results)")
         need(n["resolution"] == sim.field_size and is_int(n["resolution"]), "hyperneat.resolution",
              f"sim.field_size ({sim.field_size}): one substrate node per field cell", n["resolution"])
         self.substrate = Substrate(resolution=n["resolution"], distance_input=n["distance_input"],
                                    weight_range=float(n["weight_range"]))
         self.image, self.decision, self.substrate_activation = n["image"], n["decision"], n["substrate_activation"]
+        self.impl = n["impl"]
         check_capacity(n, "hyperneat", cfg.population_size, initial_conns(self.substrate.n_inputs, CPPN_OUTPUTS))
         check_add_links(n["max_add_links"], "hyperneat", cfg.population_size,
                         f"min({presets.MAX_ADD_LINKS}, population_size)")
@@ -115,7 +123,16 @@ class HyperNEATEncoding(NEATEncoding):
         # skip_idle: no decision where the world reads none (the ball in flight, the episode over); every
         # episode, and so every result, is the same bit for bit, for about a quarter less per live step
         return bev_policy(sim, image=self.image, decision=self.decision, activation=self.substrate_activation,
-                          skip_idle=True)
+                          skip_idle=True, impl=self.impl)
+
+    def implementation(self) -> dict:
+        """Which code computes the decision's sums in this process (:func:`kx.hyperneat.bev.native_runs`)."""
+        why = "" if self.impl == "xla" else native_runs(self.image)
+        if self.impl != "xla" and not why:
+            from kx import native
+
+            return {"decision_sums": "native", "chosen": self.impl, "library": str(native.library_path())}
+        return {"decision_sums": "xla", "chosen": self.impl, **({"why_not_native": why} if why else {})}
 
     policy_params_leading_axes = False  # its own policy_params: the substrate query, mapped over runs
 
