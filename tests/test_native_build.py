@@ -1,4 +1,4 @@
-"""Where and how kx.native's library is built, whether or not it can run here: a per-user cache (KX_CACHE_DIR,
+"""Where and how kx.native's library is built, whether or not it can run here: a per-user cache (KX_NATIVE_CACHE,
 XDG_CACHE_HOME, ~/.cache), one build for processes that start together, warnings shown (XLA's headers as system
 headers, no blanket suppression), one clear line where it cannot be built; and the run config's choice of
 implementation (``hyperneat.impl``)."""
@@ -35,14 +35,14 @@ exit {status}
 
 
 def test_the_cache_is_per_user_and_can_be_moved(monkeypatch, tmp_path):
-    monkeypatch.delenv("KX_CACHE_DIR", raising=False)
+    monkeypatch.delenv("KX_NATIVE_CACHE", raising=False)
     monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
     assert native.cache_dir() == pathlib.Path.home() / ".cache" / "kx" / "native"
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert native.cache_dir() == tmp_path / "xdg" / "kx" / "native"
-    monkeypatch.setenv("KX_CACHE_DIR", str(tmp_path / "kx"))
-    assert native.cache_dir() == tmp_path / "kx" / "native"
-    assert native.library_path().parent == tmp_path / "kx" / "native"
+    monkeypatch.setenv("KX_NATIVE_CACHE", str(tmp_path / "kx"))
+    assert native.cache_dir() == tmp_path / "kx"
+    assert native.library_path().parent == tmp_path / "kx"
     assert not (REPO / "kx" / "native" / "_build").exists()  # nothing is built into the package
 
 
@@ -53,7 +53,7 @@ def _build_in(env):
 
 def test_processes_that_start_together_build_once_with_warnings_on(monkeypatch, tmp_path):
     cxx = _fake_compiler(tmp_path)
-    env = {"KX_CACHE_DIR": str(tmp_path / "cache"), "CXX": str(cxx)}
+    env = {"KX_NATIVE_CACHE": str(tmp_path / "cache"), "CXX": str(cxx)}
     with multiprocessing.get_context("spawn").Pool(3) as pool:
         paths = pool.map(_build_in, [env] * 3)
     assert len(set(paths)) == 1 and pathlib.Path(paths[0]).read_text() == "library\n"
@@ -62,36 +62,36 @@ def test_processes_that_start_together_build_once_with_warnings_on(monkeypatch, 
     args = calls[0].split()
     assert "-isystem" in args and "-I" not in args and not [a for a in args if a.startswith("-Wno-")]
     assert {"-Wall", "-Wextra", "-march=native", "-ffp-contract=off"} <= set(args)
-    assert sorted(p.name for p in (tmp_path / "cache" / "native").iterdir()) == [".lock", pathlib.Path(paths[0]).name]
+    assert sorted(p.name for p in (tmp_path / "cache").iterdir()) == [".lock", pathlib.Path(paths[0]).name]
 
 
 def test_a_compiler_warning_is_shown(monkeypatch, tmp_path, capsys):
-    monkeypatch.setenv("KX_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("KX_NATIVE_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CXX", str(_fake_compiler(tmp_path, stderr="bev_sums.cc:1: warning: unused variable")))
     native.build()
     assert "kx.native: the compiler warns:\nbev_sums.cc:1: warning: unused variable" in capsys.readouterr().err
 
 
 def test_a_failed_build_says_why_and_leaves_nothing(monkeypatch, tmp_path):
-    monkeypatch.setenv("KX_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("KX_NATIVE_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CXX", "no-such-compiler")
     with pytest.raises(RuntimeError, match="no C.. compiler: 'no-such-compiler' is not on PATH"):
         native.build()
     monkeypatch.setenv("CXX", str(_fake_compiler(tmp_path, stderr="bev_sums.cc:3: error: oops", status=1)))
     with pytest.raises(RuntimeError, match="failed:\nbev_sums.cc:3: error: oops"):
         native.build()
-    assert [p.name for p in (tmp_path / "cache" / "native").iterdir()] == [".lock"]  # nothing half-written
+    assert [p.name for p in (tmp_path / "cache").iterdir()] == [".lock"]  # nothing half-written
 
 
 @pytest.mark.parametrize("case", ["no compiler", "cache not writable", "compiler fails"])
 def test_python_m_kx_native_fails_with_one_clear_line(case, tmp_path):
-    env = {**os.environ, "KX_CACHE_DIR": str(tmp_path / "cache"), "JAX_PLATFORMS": "cpu"}
+    env = {**os.environ, "KX_NATIVE_CACHE": str(tmp_path / "cache"), "JAX_PLATFORMS": "cpu"}
     if case == "no compiler":
         env["CXX"] = "no-such-compiler"
         want = "kx.native: not built (no C++ compiler: 'no-such-compiler' is not on PATH"
     elif case == "cache not writable":  # a folder under a file: no user, root included, can create it
         (tmp_path / "file").write_text("")
-        env["KX_CACHE_DIR"], want = str(tmp_path / "file" / "cache"), "kx.native: not built (the cache folder "
+        env["KX_NATIVE_CACHE"], want = str(tmp_path / "file" / "cache"), "kx.native: not built (the cache folder "
     else:
         env["CXX"] = str(_fake_compiler(tmp_path, stderr="x.cc:3: error: oops\\nnote: more", status=1))
         want = "kx.native: not built (the compiler failed: x.cc:3: error: oops)"

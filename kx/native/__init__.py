@@ -8,7 +8,7 @@ same sums bit for bit (tests/test_native.py) at a fraction of the cost (docs/hyp
 decision").
 
 The library is built by ``python -m kx.native`` (which ``make`` runs at set-up), or on first use, into a
-per-user cache as JAX's compilation cache is (``$KX_CACHE_DIR/native``, else
+per-user cache as JAX's compilation cache is (``$KX_NATIVE_CACHE``, else
 ``$XDG_CACHE_HOME/kx/native``, else ``~/.cache/kx/native``), named by a hash of its source, the compiler and
 its flags, jaxlib's version and the CPU's model and flags, so that a change of any of them builds it again.
 A build holds a lock on the cache (processes starting together build it once), and goes to a temporary file
@@ -45,11 +45,11 @@ TARGET = "kx_bev_sums"
 
 
 def cache_dir() -> pathlib.Path:
-    """The per-user folder of built libraries: ``$KX_CACHE_DIR/native``, else ``$XDG_CACHE_HOME/kx/native``,
-    else ``~/.cache/kx/native``."""
+    """The per-user folder of built libraries: ``$KX_NATIVE_CACHE``, else ``$XDG_CACHE_HOME/kx/native``, else
+    ``~/.cache/kx/native`` (beside JAX's compilation cache, ``~/.cache/kx/jax``: :mod:`kx.runtime`)."""
     env = os.environ
-    if env.get("KX_CACHE_DIR"):
-        return pathlib.Path(env["KX_CACHE_DIR"]) / "native"
+    if env.get("KX_NATIVE_CACHE"):
+        return pathlib.Path(env["KX_NATIVE_CACHE"])
     base = pathlib.Path(env["XDG_CACHE_HOME"]) if env.get("XDG_CACHE_HOME") else pathlib.Path.home() / ".cache"
     return base / "kx" / "native"
 
@@ -87,7 +87,7 @@ def build() -> pathlib.Path:
         path.parent.mkdir(parents=True, exist_ok=True)
         lock = open(path.parent / ".lock", "a")  # noqa: SIM115  (held for the build)
     except OSError as e:
-        raise RuntimeError(f"the cache folder {path.parent} cannot be written ({e.strerror}; set KX_CACHE_DIR to "
+        raise RuntimeError(f"the cache folder {path.parent} cannot be written ({e.strerror}; set KX_NATIVE_CACHE to "
                            "another)") from None
     with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # another process's build of the same library: wait, then use it
