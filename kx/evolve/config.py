@@ -32,7 +32,6 @@ from kx.sim.types import KeepAwayConfig, KeepAwayError, KeepAwayParams
 # The shipped configs: package data (kx/configs/), so an installed kx has them; a checkout's configs/ links here
 CONFIG_DIR = pathlib.Path(__file__).resolve().parents[1] / "configs"
 DEFAULT_CONFIG = CONFIG_DIR / "neat_3v2.py"
-LAYOUTS = ("fixed", "full")
 PAPER_TASKS = ("3v2", "4v3", "5v3", "6v4")
 
 # config.json's record of a transferred run's source (kx.evolve.transfer), beside the config's fields

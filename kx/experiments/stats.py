@@ -66,17 +66,6 @@ def mann_whitney(a, b) -> Comparison:
     return Comparison(x.size, y.size, float(res.statistic), float(res.pvalue), vargha_delaney(x, y))
 
 
-def smallest_p(n_a: int, n_b: int) -> float:
-    """The smallest two-sided p :func:`mann_whitney` gives for samples of ``n_a`` and ``n_b`` distinct
-    values, reached when every value of one sample exceeds every value of the other: ``2 / C(n_a + n_b,
-    n_a)`` where scipy's test is exact (a sample of at most 8 values), the normal approximation's beyond. It
-    bounds what a protocol of that many runs per cell can show (ties between runs, rare in fitness
-    values, can lower the approximation's p a little further)."""
-    if n_a < 1 or n_b < 1:
-        raise ValueError(f"both samples need values, got {n_a} and {n_b}")
-    return mann_whitney(np.arange(n_a) + float(n_b), np.arange(n_b, dtype=np.float64)).p
-
-
 def vargha_delaney(a, b) -> float:
     """The Vargha-Delaney A of ``a`` over ``b``: the probability that a value of ``a`` exceeds one of ``b``,
     ties counted half (``U_a / (n_a n_b)``). For one task it is also Agarwal et al.'s probability of
