@@ -856,3 +856,30 @@ def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():
              if r["claim"].key == "neat/none_novelty > neat/none")
     assert len(r["tests"]) == 2 and r["tests"][0].z < -5 and r["tests"][1].z > 0
     assert r["way"] == -1 and r["verdict"] == "contradicted"
+
+
+def test_reproduce_trains_a_folders_runs_again_and_names_the_columns_that_differ(tmp_path, capsys):
+    """``python -m kx.experiments reproduce``: one run of each method trained again from the folder's committed
+    files alone (a source through the run loop's own re-run check when its target is asked for); a row
+    edited by hand is caught, column by column, and the exit status says so."""
+    from kx.experiments import reproduce
+
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
+    out = tmp_path / "t3"
+    t3.run(out, protocol, t3.plan(("neat",), ("4v3",), ("fitness",), runs=1), log=lambda s: None)
+    shutil.rmtree(out / "runs")  # a fresh clone's folder: results.csv and protocol.json
+    rows = t3.read_results(out / "results.csv")
+    assert reproduce.default_keys(rows) == [("neat", "fitness", "source", "3v2", 0)]
+    target = ("neat", "fitness", "target", "4v3", 0)
+    diffs = reproduce.reproduce(out, [target], log=lambda s: None)  # its source is trained again first, and checked
+    assert diffs == {target: []}
+    edited = [dict(r, max_fitness="0.5") if t3.row_key(r) == target else r for r in rows]
+    csvfile.write(out / "results.csv", t3.FIELDS, edited)
+    assert cli.main(["reproduce", str(out), "--row", "neat,fitness,target,4v3,0"]) == 1
+    printed = capsys.readouterr().out
+    assert "neat,fitness,target,4v3,0: DIFFERS: max_fitness recorded 0.5, now " in printed, printed
+    assert "reproduce: 0 of 1 rows reproduced" in printed
+    with pytest.raises(ValueError, match=r"--row: allowed METHOD,SETUP,PHASE,TARGET,RUN"):
+        reproduce.parse_key("neat,fitness,target,4v3")
+    with pytest.raises(t3.RunError, match=r"results.csv has no row \('neat', 'none', 'target', '5v3', 0\)"):
+        reproduce.reproduce(out, [("neat", "none", "target", "5v3", 0)])

@@ -92,6 +92,12 @@ def main(argv: list[str] | None = None) -> int:
     n.add_argument("--batch", type=int, default=16)
     for q in (t, n):
         _processes_args(q)
+    q = sub.add_parser("reproduce", help="train chosen runs of a protocol folder again and compare their rows with "
+                                         "the committed ones (default: one run of each method)")
+    q.add_argument("dir", help="a table3 or confirmatory folder (protocol.json, results.csv)")
+    q.add_argument("--row", action="append", default=None, metavar="METHOD,SETUP,PHASE,TARGET,RUN",
+                   help="a row to reproduce (repeatable; default: run 0 of each method's cheapest cell)")
+    q.add_argument("--work", default=None, help="the scratch folder (default: a temporary one, removed after)")
     r = sub.add_parser("report", help="report.md and its PNGs from DIR/results.csv alone")
     r.add_argument("dir")
     s = sub.add_parser("sweep", help="every combination of a grid x seeds")
@@ -110,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     from kx import processes
 
     shard = processes.ALONE
-    if args.command not in ("report", "confirm"):
+    if args.command not in ("report", "confirm", "reproduce"):
         if args.processes < 1:
             print(f"python -m kx.experiments {args.command}: --processes: allowed an integer >= 1, got "
                   f"{args.processes}", file=sys.stderr)
@@ -161,6 +167,15 @@ def _command(args: argparse.Namespace, shard) -> int:
                 from kx.experiments import report
                 print(report.write(d))
             return 0
+        if args.command == "reproduce":
+            from kx.experiments import reproduce
+            keys = None if args.row is None else [reproduce.parse_key(t) for t in args.row]
+            diffs = reproduce.reproduce(args.dir, keys, args.work)
+            for key, diff in diffs.items():
+                print(f"{','.join(map(str, key))}: " + ("reproduced (every column but the times)" if not diff
+                                                        else "DIFFERS: " + "; ".join(diff)))
+            print(f"reproduce: {sum(not d for d in diffs.values())} of {len(diffs)} rows reproduced")
+            return 0 if not any(diffs.values()) else 1
         if args.command == "confirm":
             from kx.experiments import confirm, report
             from kx.experiments import table3 as t3
