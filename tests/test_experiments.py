@@ -858,6 +858,8 @@ def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():
     assert r["way"] == -1 and r["verdict"] == "contradicted"
 
 
+@pytest.mark.slow  # ~25 s: four tiny runs (the default suite checks the run loop's own re-run of a source:
+# test_a_folder_of_only_its_committed_files_extends_to_another_target)
 def test_reproduce_trains_a_folders_runs_again_and_names_the_columns_that_differ(tmp_path, capsys):
     """``python -m kx.experiments reproduce``: one run of each method trained again from the folder's committed
     files alone (a source through the run loop's own re-run check when its target is asked for); a row

@@ -143,6 +143,6 @@ if __name__ == "__main__":  # the checks under XLA's default flags (test_native_
 
     runtime.setup(1)
     assert bev.chain_is_fused()
-    check_native_against_xla(["3v2", "4v3", "6v4"], extra_rows=False)
+    check_native_against_xla(["6v4"], extra_rows=False)  # the most keepers' rows and path steps
     check_episodes_alike()
     print("the same bits, fused")

@@ -34,6 +34,7 @@ print(json.dumps(maps))
 """
 
 
+@pytest.mark.slow  # ~30 s: a run of every method in one process (a guard against a leak of compiled programs)
 @pytest.mark.skipif(runtime.memory_maps() is None, reason="no /proc/self/maps on this system")
 def test_one_process_trains_every_method_well_below_the_memory_map_limit():
     out = subprocess.run([sys.executable, "-c", SCRIPT], cwd=REPO, capture_output=True, text=True, timeout=900)
