@@ -310,7 +310,7 @@ def _compact_and_all_entries(table, index, state, config, image):
 
 
 @pytest.mark.parametrize(("task", "image"), [
-    ("3v2", "authors"), ("3v2", "paper"), ("6v4", "paper"),
+    ("3v2", "authors"), ("3v2", "paper"), pytest.param("6v4", "paper", marks=pytest.mark.slow),
     # the authors' image in 6v4 compiles its own programs (6 s of the default suite's time on 2 cores):
     # its padding is the 3v2 case's, on more agents
     pytest.param("6v4", "authors", marks=pytest.mark.slow)])

@@ -272,6 +272,7 @@ def test_the_presets_structural_rates_through_tell():
         near(counts[a] / len(new_act), 1 / K, len(new_act))
 
 
+@pytest.mark.slow  # ~10 s: the mutation's rate and effect are the default suite's (test_neat_mutation.py)
 def test_activation_mutation_through_tell():
     # The preset's 0 raised to 0.3: an offspring without a structural mutation redraws one hidden
     # node's activation with p = 0.3, uniformly from the five (so it changes in 4/5 of the draws).

@@ -24,7 +24,8 @@ def _states(k: int, t: int, n: int = 16):
     return env, state
 
 
-@pytest.mark.parametrize("k,t", TASKS)
+@pytest.mark.parametrize("k,t", [(3, 2), pytest.param(4, 3, marks=pytest.mark.slow),
+                                 pytest.param(5, 3, marks=pytest.mark.slow), (6, 4)])
 def test_the_tokens_are_the_holders_view_by_hand(k, t):
     env, state = _states(k, t)
     tok = entities.tokens(state.world, env.config)
@@ -122,7 +123,8 @@ def test_the_entity_network_follows_its_teammates_ignores_the_takers_order_and_f
         np.testing.assert_allclose(v2, value, rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("k,t", [pytest.param(3, 2, marks=pytest.mark.slow), (6, 4)])
+@pytest.mark.slow  # ~10 s a size: PPO's determinism is the default suite's in test_train_ppo.py (resumed bit for bit)
+@pytest.mark.parametrize("k,t", [(3, 2), (6, 4)])
 def test_ppo_trains_the_entity_network_the_same_way_twice(k, t):
     cfg = ppo.PPOConfig(num_envs=16, num_steps=8, updates=2, network="entity", hidden=16, heads=2)
     env = ppo.environment(cfg, KeepAwayConfig(n_keepers=k, n_takers=t))

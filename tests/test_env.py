@@ -320,7 +320,8 @@ def test_fenced_traces_its_function_once_and_gives_its_values_under_jit_and_vmap
     np.testing.assert_array_equal(v["sum"], (a + b).reshape(2, 2))
 
 
-@pytest.mark.parametrize("task", TASKS)
+@pytest.mark.parametrize("task", ["3v2", pytest.param("4v3", marks=pytest.mark.slow),
+                                  pytest.param("5v3", marks=pytest.mark.slow), "6v4"])
 def test_reset_batch_compiled_equals_reset_one_episode_at_a_time(task):
     """reset_batch is one compiled program; its start states are the eager single resets', bit for bit."""
     cfg = KeepAwayConfig.from_task(task)

@@ -99,6 +99,8 @@ def test_an_episodes_return_is_the_evaluators_fitness_for_the_same_decisions():
         assert float(gym.survived(final, PARAMS)) == float(stats.fitness[0, i])
 
 
+@pytest.mark.slow  # ~15 s: the default suite vmaps the step in the gymnax training loop and checks the batched
+# step against the per-episode one
 def test_reset_and_step_vmap_over_episodes_as_one_by_one_and_step_starts_a_new_episode():
     keys = jax.random.split(jax.random.key(7), 8)
     _, states = jax.vmap(ENV.reset, in_axes=(0, None))(keys, PARAMS)

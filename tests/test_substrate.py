@@ -130,6 +130,7 @@ def test_every_activation_and_a_chain_of_hidden_nodes():
         assert b[o] == pytest.approx(5 * bip(h1 - 0.2 * h2), abs=2e-5)
 
 
+@pytest.mark.slow  # ~10 s: the default suite checks the build bit for bit against the reference instead
 def test_the_batched_query_equals_each_cppn_network_on_every_link():
     params = NEATParams(add_node_prob=0.4, add_link_prob=0.4, target_species=3, weight_init_range=3.0)
     neat = NEAT(CFG, params)

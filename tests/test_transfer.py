@@ -57,7 +57,8 @@ def _leaves_equal(a, b) -> bool:
     return all(np.array_equal(np.asarray(x), np.asarray(y)) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)))
 
 
-@pytest.mark.parametrize("method", ["neat", "hyperneat"])
+# HyperNEAT's CPPNs carry over unchanged (no map of inputs): its variant in the slow set (~12 s)
+@pytest.mark.parametrize("method", ["neat", pytest.param("hyperneat", marks=pytest.mark.slow)])
 def test_population_carries_over_and_keeps_its_source_fitness(sources, method):
     """Fixed-layout genomes and CPPNs carry over unchanged: the target's first population is the source
     checkpoint's, and on the source's own start states it scores exactly what the source run gives it
