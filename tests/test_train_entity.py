@@ -11,7 +11,6 @@ import pytest
 from test_train import _runs, resume_here  # noqa: F401  (the session cache of trained runs it uses)
 
 from kx import ppo
-from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
 from kx.evolve.encodings import ppo as ppo_enc
@@ -31,20 +30,21 @@ def trained(_runs):  # noqa: F811
     return _runs("ppo_entity")
 
 
+@pytest.mark.slow  # ~25 s with its trained run: the run loop's resume is the default suite's on PPO's MLP
 def test_resuming_from_a_checkpoint_ends_bit_for_bit_where_the_uninterrupted_run_does(trained, tmp_path):
     resume_here(trained, tmp_path)
 
 
-def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_size(trained):
-    """The champion's weights, as the evaluator plays them (each lane its own row of the table, alone), decide as
-    the trained network's forward pass on the same tokens does (argmax of its logits, to a keeper), in 3v2 and,
-    unchanged, in 4v3, 5v3 and 6v4; with two networks in the table each lane follows its own."""
-    run_dir = trained[0]
-    trainer = run_lib.Trainer(cfg_lib.read_run_config(run_dir / "config.json"))
-    _, state, _ = trainer.restore(run_dir, ckpt.steps(run_dir)[-1])
-    enc = trainer.encoding
-    champion, last = state.champion, state.learner.params
+def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_size():
+    """Two networks' weights, as the evaluator plays them (each lane its own row of the table, alone), decide as
+    the network's forward pass on the same tokens does (argmax of its logits, to a keeper), in 3v2 and,
+    unchanged, in 4v3, 5v3 and 6v4; each lane follows its own network."""
+    exp = cfg_lib.validate(cfg_lib.load(cfg_lib.CONFIG_DIR / "ppo_entity_3v2.py", TINY))
+    enc = exp.encoding
     net = ppo.network(enc.ppo)
+    _, first = gym.KeepAway(exp.sim).reset_batch(jax.random.key(0), 4, KeepAwayParams())
+    tokens = entities.batch_first(entities.tokens(first.world, exp.sim))
+    champion, last = (net.init(jax.random.key(i), jax.tree.map(lambda a: a[0], tokens)) for i in (1, 2))
     for k, t in ((3, 2), (4, 3), (5, 3), (6, 4)):
         sim = KeepAwayConfig(n_keepers=k, n_takers=t)
         _, starts = gym.KeepAway(sim).reset_batch(jax.random.key(k), 64, KeepAwayParams())
@@ -60,6 +60,7 @@ def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_si
             logits, _ = net.apply(params, obs)
             want.append(np.asarray(entities.keeper_of(np.argmax(np.asarray(logits), -1), world, sim)))
         np.testing.assert_array_equal(got, np.where(np.arange(64) % 2 == 0, want[0], want[1]))
+        assert len(np.unique(got)) > 1 and not np.array_equal(want[0], want[1])  # decisions that can disagree
 
 
 @pytest.mark.slow  # ~15 s: the run loop's transfer, which the default suite checks on NEAT and PPO
