@@ -166,8 +166,9 @@ def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
     _, batch = ENV.reset_batch(jax.random.key(0), n, short)
     key = jax.random.key(5)
     # every episode ends at its second iteration: all six at once, more than the four starts drawn
+    step = jax.jit(ENV.step_batch, static_argnums=4)
     for _ in range(2):
-        _, batch, _, done, info = ENV.step_batch(key, batch, jnp.zeros(n, jnp.int32), short, resets)
+        _, batch, _, done, info = step(key, batch, jnp.zeros(n, jnp.int32), short, resets)
     assert bool(done.all()) and int(info["shared_starts"]) == n - resets
     k_starts, _ = jax.random.split(key)
     _, fresh = ENV.reset_batch(k_starts, resets, short)
