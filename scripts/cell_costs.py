@@ -183,7 +183,7 @@ def _totals(runs: int, fit) -> np.ndarray:
     return np.array([sec.sum(), fixed * len(live), per_step * live.sum(), live.sum(), runs * len(live), 0.0])
 
 
-GOAL = 1.5  # issue 30: a HyperNEAT 4v3 target generation at most 1.5 times a NEAT one
+GOAL = 1.5  # the cost goal: a HyperNEAT 4v3 target generation at most 1.5 times a NEAT one
 
 
 def _versus_fit(folder: pathlib.Path, cells, method: str, base: str) -> None:

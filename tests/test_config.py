@@ -1,5 +1,5 @@
 """Config validation's bounds and messages, the feature names of the observation layouts and the
-network drawing that uses them, and the package and script hygiene (issue 20's config part)."""
+network drawing that uses them, and the package and script hygiene."""
 
 import ast
 import importlib

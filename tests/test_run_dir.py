@@ -1,4 +1,4 @@
-"""The run directory's bookkeeping (issue 20): the ETA after a resume, a resume with nothing to do,
+"""The run directory's bookkeeping: the ETA after a resume, a resume with nothing to do,
 one writer at a time (run.lock), orbax's temporary folders after a kill, kx.evaluate's JSON and
 confidence interval, and a bare boolean override on the command line.
 

@@ -2,7 +2,7 @@
 
     python -m kx.experiments table3 --runs 20 --out runs/table3            # the paper's protocol (SPEC section 6)
     python -m kx.experiments table3 --runs 5 --methods neat --targets 4v3 --out runs/t3   # a part of it
-    python -m kx.experiments novelty --out docs/novelty                   # the hybrid's readings (issue 32)
+    python -m kx.experiments novelty --out docs/novelty                   # the hybrid's readings
     python -m kx.experiments confirm --basis docs/table3 --out runs/confirm # a confirmatory replication
     python -m kx.experiments report runs/table3                            # report.md + PNGs from results.csv
     python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\

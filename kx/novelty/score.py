@@ -38,7 +38,7 @@ from flax import struct
 
 from kx.novelty.archive import Archive, update_archive, update_archive_authors
 
-#: the readings of the hybrid (issue 32; docs/novelty.md): how fitness and novelty are put on one scale, and
+#: the readings of the hybrid (docs/novelty.md): how fitness and novelty are put on one scale, and
 #: which individuals the archive admits
 NORMALISATIONS = ("population", "fixed")
 ARCHIVE_RULES = ("paper", "authors")
