@@ -55,7 +55,12 @@ def test_holm_against_hand_computed_values_and_statsmodels():
     np.testing.assert_allclose(stats.holm([0.01, 0.04, 0.03, 0.2]), [0.04, 0.09, 0.09, 0.2])
     np.testing.assert_allclose(stats.holm([0.5, 0.6]), [1.0, 1.0])  # capped at 1
     p = np.random.default_rng(1).uniform(0, 0.2, 12)
-    np.testing.assert_allclose(stats.holm(p), statsmodels.stats.multitest.multipletests(p, method="holm")[1])
+    np.testing.assert_array_equal(stats.holm(p), statsmodels.stats.multitest.multipletests(p, method="holm")[1])
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 9, 30):  # random families, with ties and values past 1 / n, bit for bit
+        for _ in range(50):
+            q = np.round(rng.random(n) ** 3, 2)
+            np.testing.assert_array_equal(stats.holm(q), statsmodels.stats.multitest.multipletests(q, method="holm")[1])
 
 
 def test_lilliefors_is_statsmodels_on_the_hand_computed_statistic():
