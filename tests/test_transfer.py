@@ -341,8 +341,12 @@ def _refused(cfg, tmp_path, *needles):
 
 
 def test_refusals(sources, tmp_path):
-    neat_src, hn_src = sources("neat"), sources("hyperneat")
-    # one method into another, both ways
+    neat_src = sources("neat")
+    # one method into another, both ways (a HyperNEAT source as its config.json says, which is all that is read
+    # before the refusal: no HyperNEAT run is trained for it)
+    hn_src = tmp_path / "hn"
+    shutil.copytree(neat_src, hn_src)
+    (hn_src / "config.json").write_text(json.dumps(_config("hyperneat", "3v2").to_dict()))
     _refused(_target("neat", hn_src), tmp_path, "transfer.source", "'hyperneat' run", "'neat'")
     _refused(_target("hyperneat", neat_src), tmp_path, "transfer.source", "'neat' run", "'hyperneat'")
     # a source larger than the target

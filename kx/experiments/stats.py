@@ -3,7 +3,7 @@
 * Normality per cell: the Lilliefors-corrected Kolmogorov-Smirnov test (statsmodels).
 * Pairwise comparisons: the two-sided Mann-Whitney U test (scipy), its effect size as the Vargha-Delaney
   A (the probability that a run of the first setup beats a run of the second, ties counted half), and
-  Holm's step-down correction over a family of comparisons (statsmodels).
+  Holm's step-down correction over a family of comparisons (statsmodels' operations, checked against it).
 * Agarwal et al. (2021): the interquartile mean with a 95% bootstrap confidence interval, and the
   probability of improvement with its interval. A cell of Table 3 is one task, so their stratified
   bootstrap (resampling runs within each task) is the plain bootstrap over the cell's runs. The
