@@ -152,7 +152,6 @@ def main_group(args, overrides) -> int:
     """``--seeds``: the runs of a batched group (:func:`kx.evolve.group.train_group`)."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import group as group_lib
-    from kx.evolve import run as run_lib
     from kx.evolve import trainer as trainer_lib
     from kx.evolve.errors import ConfigError, RunError
 
@@ -174,20 +173,25 @@ def main_group(args, overrides) -> int:
         workdir = workdir_of(args, f"seeds{seeds[0]}-{seeds[-1]}")
         dirs = [workdir / f"seed{s}" for s in seeds]
         for d in dirs:
-            if d.is_dir():
-                run_lib.RunLock(d).check()
-            if not args.overwrite:
-                run_lib.prepare_run_dir(d, args.resume, False)
-    except (ConfigError, RunError) as e:
-        print(f"kx.train: error: {e}", file=sys.stderr)
-        return 2
-    try:
+            refuse_taken(d, args)
+        # every refusal above comes before any compute
         group_lib.train_group(cfgs, dirs, resume=args.resume, overwrite=args.overwrite,
                               log=lambda s: print(s, flush=True))
     except (ConfigError, RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def refuse_taken(run_dir: pathlib.Path, args) -> None:
+    """Refuses ``run_dir`` now, before JAX computes: one that another process is writing (run.lock), or,
+    without ``--overwrite``, an existing run directory (``--resume`` takes one)."""
+    from kx.evolve import run as run_lib
+
+    if run_dir.is_dir():
+        run_lib.RunLock(run_dir).check()
+    if not args.overwrite:
+        run_lib.prepare_run_dir(run_dir, args.resume, False)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -210,14 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         cfg = load_config(args, overrides, pathlib.Path(args.workdir or "."))
         cfg_lib.validate(cfg)
         workdir = workdir_of(args, f"s{cfg.seed}")
-        if workdir.is_dir():  # one that another process is writing (run.lock): refused now, before JAX computes
-            run_lib.RunLock(workdir).check()
-        if not args.overwrite:  # refuse an existing run directory now, before JAX starts
-            run_lib.prepare_run_dir(workdir, args.resume, False)
-    except (ConfigError, RunError) as e:
-        print(f"kx.train: error: {e}", file=sys.stderr)
-        return 2
-    try:
+        refuse_taken(workdir, args)
+        # every refusal above comes before any compute
         run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
                       log=lambda s: print(s, flush=True))
     except (ConfigError, RunError) as e:

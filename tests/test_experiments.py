@@ -92,6 +92,9 @@ def test_iqm_and_the_bootstrap_intervals():
     half = scipy.stats.t.ppf(0.975, 1) * math.sqrt(2) / math.sqrt(2)
     np.testing.assert_allclose(mean, [1.0, 2.0])
     np.testing.assert_allclose(hi - mean, [half, half])
+    cut = stats.mean_band([[0.0, 1.0, 9.0], [2.0, 3.0]])  # runs of unequal length: cut to the shortest
+    np.testing.assert_array_equal(cut[0], mean)
+    np.testing.assert_array_equal(cut[2], hi)
 
 
 def test_van_elteren_against_hand_computed_values_and_scipy():

@@ -109,20 +109,11 @@ def _time_per_lane(fn, state, params, reps: int = 40, samples: int = 5) -> float
     """Median nanoseconds per lane of ``fn(params, state)`` (an int or float array ``[*B]``), applied
     ``reps`` times inside one compiled loop (so that dispatch does not count), over ``samples`` calls."""
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
-    @jax.jit
-    def loop(params, state):
-        def body(i, carry):
-            state, acc = carry
-            acc = acc + fn(params, state).astype(jnp.float32)
-            # the next iteration's state depends on this one's result (a nudge that is always 0, which
-            # XLA cannot prove): the work is redone every iteration instead of hoisted out of the loop
-            nudge = (acc > 3e38).astype(state.keeper_x.dtype)
-            return state.replace(keeper_x=state.keeper_x + nudge[None], t=state.t + 1), acc
-        return jax.lax.fori_loop(0, reps, body, (state, jnp.zeros(state.holder.shape, jnp.float32)))[1]
+    from kx.bench.common import repeated
 
+    loop = repeated(fn, reps)
     jax.block_until_ready(loop(params, state))
     times = []
     for _ in range(samples):

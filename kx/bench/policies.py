@@ -110,21 +110,11 @@ def _decision_alone(named, lanes, reps: int = 20, rounds: int = 5) -> dict:
     compiled loop on one device, whose iterations depend on each other (XLA cannot hoist the work out);
     the medians of ``rounds`` calls taken in turn."""
     import jax
-    import jax.numpy as jnp
     import numpy as np
 
-    def looped(fn):
-        @jax.jit
-        def loop(params, state):
-            def body(i, carry):
-                state, acc = carry
-                acc = acc + fn(params, state).astype(jnp.float32)
-                nudge = (acc > 3e38).astype(state.keeper_x.dtype)  # always 0, which XLA cannot prove
-                return state.replace(keeper_x=state.keeper_x + nudge[None], t=state.t + 1), acc
-            return jax.lax.fori_loop(0, reps, body, (state, jnp.zeros(state.holder.shape, jnp.float32)))[1]
-        return loop
+    from kx.bench.common import repeated
 
-    loops = {k: (looped(fn), params) for k, (fn, params) in named.items()}
+    loops = {k: (repeated(fn, reps), params) for k, (fn, params) in named.items()}
     for loop, params in loops.values():
         jax.block_until_ready(loop(params, lanes))
     times = {k: [] for k in loops}

@@ -375,16 +375,25 @@ def with_later_fields(d: dict) -> dict:
     return d
 
 
+def read_run_json(path: str | pathlib.Path):
+    """A run directory's ``config.json`` as JSON (the config's fields and a transferred run's record of its
+    source), or :class:`ConfigError` when it is there but not readable as JSON; ``None`` when it is missing."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
+
+
 def read_run_config(path: str | pathlib.Path) -> ml_collections.ConfigDict:
     """A run directory's ``config.json`` as a config (unlocked), or :class:`ConfigError` saying why not:
     missing, not JSON, not an object of config fields, or written by a kx with other fields."""
     path = pathlib.Path(path)
-    if not path.is_file():
+    d = read_run_json(path)
+    if d is None:
         raise ConfigError(f"{path}: no such file (not a kx run directory?)")
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
     if isinstance(d, dict):
         d = {k: v for k, v in d.items() if k != SOURCE_RECORD}  # a transferred run's record of its source
         d = with_later_fields(d)

@@ -16,8 +16,8 @@ method is one class that implements it, registered under the config's ``method``
         def ask(self, key, state): ...     # the population to evaluate (a pytree, leading axis P)
         def tell(self, key, population, score, fitness, state): ...   # -> (state, {field: scalar})
         def policy_for(self, sim): ...     # the kx.sim Policy its genotypes play in task ``sim``
-        def policy_params(self, population): ...   # the evaluator's params for that policy
-        # optional: transfer_problems and transfer, to seed a run from another run's checkpoint
+        # optional: policy_params (the evaluator's params for that policy; default the population itself),
+        # and transfer_problems and transfer, to seed a run from another run's checkpoint
 
     kx.evolve.registry.register(MyEncoding)
 
@@ -114,10 +114,11 @@ class Encoding(abc.ABC):
         """The policy this encoding's genotypes play in task ``sim`` (raise ``ConfigError`` when they
         cannot: e.g. a full-layout network has as many inputs as its own task needs)."""
 
-    @abc.abstractmethod
     def policy_params(self, population: Any) -> Any:
         """The evaluator's parameters of ``population``'s policies (leading axis P; a shared table when
-        the policy is ``shared``)."""
+        the policy is ``shared``): by default the population itself (a learner whose genotypes are the
+        policy's parameters, as CMA-ES's and PPO's are)."""
+        return population
 
     @property
     def policy(self) -> Policy:

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import pathlib
 from typing import Any, Callable
 
@@ -115,13 +114,7 @@ PINNED_KEYS = ("path", "step", "digest")
 
 def saved_record(run_dir) -> dict | None:
     """The ``transfer_source`` record of the run in ``run_dir`` (``None``: no config.json, or no record)."""
-    path = pathlib.Path(run_dir) / "config.json"
-    if not path.is_file():
-        return None
-    try:
-        d = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ConfigError(f"{path}: corrupt, not readable as JSON ({e})") from None
+    d = cfg_lib.read_run_json(pathlib.Path(run_dir) / "config.json")
     return d.get(SOURCE_RECORD) if isinstance(d, dict) else None
 
 

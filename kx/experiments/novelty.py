@@ -420,18 +420,10 @@ def _plots(cells: dict, diag: dict, out: pathlib.Path) -> list[str]:
                     cs = [t3.curve(r, what) for r in cells.get((a, m, phase), [])]
                 if not cs:
                     continue
-                n = min(len(c) for c in cs)
-                mean, lo, hi = stats.mean_band([c[:n] for c in cs])
-                ax.plot(np.arange(n), mean, color=colours[a], label=f"{a} (n={len(cs)})", linewidth=1.2)
-                ax.fill_between(np.arange(n), lo, hi, color=colours[a], alpha=0.12, linewidth=0)
-            ax.set_title(METHOD_NAMES[m])
-            ax.set_xlabel("generation")
-            if j == 0:
-                ax.set_ylabel(ylabel)
-            if ax.lines:
-                ax.legend(fontsize=6, loc="best")
-            else:
-                ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", va="center", color="grey")
+                mean, lo, hi = stats.mean_band(cs)
+                ax.plot(np.arange(mean.size), mean, color=colours[a], label=f"{a} (n={len(cs)})", linewidth=1.2)
+                ax.fill_between(np.arange(mean.size), lo, hi, color=colours[a], alpha=0.12, linewidth=0)
+            report.curve_panel(ax, METHOD_NAMES[m], ylabel if j == 0 else None, 6, "best")
         fig.tight_layout()
         fig.savefig(out / name, dpi=90, metadata={"Software": None})
         plt.close(fig)

@@ -394,6 +394,19 @@ def _efficiency_claim(eff: list[tuple]) -> list[str]:
     return lines + [""]
 
 
+def curve_panel(ax, title: str, ylabel: str | None, legend_size: int, legend_loc: str) -> None:
+    """A panel of curves over generations finished: its title and axis labels, and its legend, or "no runs
+    yet" where it has no curve."""
+    ax.set_title(title)
+    ax.set_xlabel("generation")
+    if ylabel is not None:
+        ax.set_ylabel(ylabel)
+    if ax.lines:
+        ax.legend(fontsize=legend_size, loc=legend_loc)
+    else:
+        ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", va="center", color="grey")
+
+
 def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
     import matplotlib
 
@@ -416,19 +429,12 @@ def _plots(rows: list[dict], out: pathlib.Path) -> list[str]:
                       if (r["method"], r["setup"], r["target"], r["phase"]) == (m, s, t, "target")]
                 if not cs:
                     continue
-                n = min(len(c) for c in cs)
-                mean, lo, hi = stats.mean_band([c[:n] for c in cs])
-                x = np.arange(n)
+                mean, lo, hi = stats.mean_band(cs)
+                x = np.arange(mean.size)
                 ax.plot(x, mean, color=colours[s], label=f"{t3.SETUPS[s].label} (n={len(cs)})")
                 ax.fill_between(x, lo, hi, color=colours[s], alpha=0.2, linewidth=0)
-            ax.set_title(f"{METHOD_NAMES[m]} {t}")
-            ax.set_xlabel("generation")
-            if j == 0:
-                ax.set_ylabel("best-so-far training fitness")
-            if ax.lines:
-                ax.legend(fontsize=7, loc="lower right")
-            else:
-                ax.text(0.5, 0.5, "no runs yet", transform=ax.transAxes, ha="center", va="center", color="grey")
+            curve_panel(ax, f"{METHOD_NAMES[m]} {t}", "best-so-far training fitness" if j == 0 else None, 7,
+                        "lower right")
     fig.tight_layout()
     fig.savefig(out / "progression.png", dpi=90, metadata={"Software": None})
     plt.close(fig)

@@ -133,9 +133,10 @@ def improvement_interval(a, b) -> Interval:
 
 
 def mean_band(curves) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per column of ``curves`` [runs, generations]: the mean and its 95% band (Student's t on the
-    standard error; zero width with one run)."""
-    c = np.asarray(curves, dtype=np.float64)
+    """Per column of ``curves`` (runs of generations, cut to the shortest run): the mean and its 95% band
+    (Student's t on the standard error; zero width with one run)."""
+    n_gen = min(len(c) for c in curves)
+    c = np.asarray([list(c)[:n_gen] for c in curves], dtype=np.float64)
     mean = c.mean(axis=0)
     n = c.shape[0]
     if n < 2:

@@ -403,15 +403,6 @@ def _act(activation: str | None, x: jax.Array) -> jax.Array:
     return x if activation is None else ACTIVATIONS[activation](x)
 
 
-def _decide_cells(vals: jax.Array, h: jax.Array, config: KeepAwayConfig) -> jax.Array:
-    """``observe.decode_bev``'s comparison on the values at the keepers' cells ``[K, *B]``."""
-    best_v, best_i = pick(vals, h), h
-    for i in range(config.n_keepers):
-        better = (vals[i] > best_v) & (h != i)
-        best_v, best_i = jnp.where(better, vals[i], best_v), jnp.where(better, i, best_i)
-    return best_i.astype(jnp.int32)
-
-
 @functools.lru_cache(maxsize=None)
 def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "cells",
                activation: str = "bipolar_sigmoid", skip_idle: bool = False, impl: str = "auto") -> Policy:
@@ -460,7 +451,7 @@ def bev_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "ce
         if decision == "cells":
             kc = state.keeper_x + config.field_size * state.keeper_y  # [K, *B]
             vals = sparse_outputs(params.table, params.index, kc, state, config, image, ranked, busy, impl)
-            action = _decide_cells(vals, h, config)
+            action = observe.decide_on_cells(vals, h, config.n_keepers)
         else:
             rows = jnp.broadcast_to(col(n, h.ndim), (n,) + h.shape)
             outs = sparse_outputs(params.table, params.index, rows, state, config, image, ranked, busy, impl)
@@ -491,7 +482,7 @@ def dense_policy(config: KeepAwayConfig, image: str = "paper", decision: str = "
             kc = state.keeper_x + w_cells * state.keeper_y  # [K, *B]
             rows = w[params.index[None], kc]  # [K, *B, N]
             out = b[params.index[None], kc] + jnp.sum(rows * img_lm[None], axis=-1)
-            return _decide_cells(_act(ranked, out), h, config)
+            return observe.decide_on_cells(_act(ranked, out), h, config.n_keepers)
         out = jnp.einsum("...oi,...i->...o", w[params.index], img_lm, precision=jax.lax.Precision.HIGHEST)
         out = _act(ranked, jnp.moveaxis(out + b[params.index], -1, 0))  # [N, *B]
         return observe.decode_bev(out, state, config, literal=True)

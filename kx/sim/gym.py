@@ -299,10 +299,7 @@ class KeepAway:
         s_max = env.noise_limit(params.kick_noise_deg)
         world = env.transition(state.world, self._keeper(state.world, action),
                                env.kick_noise(state.noise_word, state.world.t, s_max), params, self.config)
-        reward = survived(world, params) - survived(state.world, params)
-        nxt = state.replace(world=world)
-        info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
-        return self._restart(key, nxt, reward, world.done, info, params, resets)
+        return self._advanced(key, state, world, params, resets)
 
     def land_batch(self, key: jax.Array, state: "BatchState", params: KeepAwayParams,
                    resets: int) -> tuple[jax.Array, "BatchState", jax.Array, jax.Array, dict]:
@@ -310,11 +307,15 @@ class KeepAway:
         at a decision wait, unchanged. ``reward``, ``done`` and ``info["iterations"]`` are each episode's over
         those iterations; the ended ones are replaced as :meth:`step_batch` replaces them. Afterwards every
         episode is at a decision."""
-        world = self._fly(state.world, state.noise_word, params)
+        return self._advanced(key, state, self._fly(state.world, state.noise_word, params), params, resets)
+
+    def _advanced(self, key: jax.Array, state: "BatchState", world, params: KeepAwayParams, resets: int):
+        """The batch moved on from ``state`` to ``world``: each episode's reward over the iterations between (the
+        share of ``max_iterations`` survived), its end and what it did, the ended ones replaced
+        (:meth:`_restart`)."""
         reward = survived(world, params) - survived(state.world, params)
-        nxt = state.replace(world=world)
         info = {"iterations": world.t - state.world.t, "reason": world.reason, "passes": world.passes}
-        return self._restart(key, nxt, reward, world.done, info, params, resets)
+        return self._restart(key, state.replace(world=world), reward, world.done, info, params, resets)
 
 
 @struct.dataclass

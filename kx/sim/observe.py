@@ -259,9 +259,15 @@ def decode_bev(outputs: jax.Array, state: State, config: KeepAwayConfig, literal
         d2 = (state.keeper_x - bx) ** 2 + (state.keeper_y - by) ** 2
         d2 = jnp.where(col(config.n_keepers, h.ndim) == h, 2 * d2 - 1, 2 * d2)  # holder wins ties
         return jnp.argmin(d2, axis=0).astype(jnp.int32)
-    vals = jnp.take_along_axis(outputs, kc, axis=0)  # [K, *B]
+    return decide_on_cells(jnp.take_along_axis(outputs, kc, axis=0), h, config.n_keepers)
+
+
+def decide_on_cells(vals: jax.Array, h: jax.Array, n_keepers: int) -> jax.Array:
+    """The BEV decision on the values at the keepers' cells ``vals [K, *B]``, the holder ``h [*B]``: the
+    holder's own value (hold) against each teammate's (pass to it); the largest wins, ties go to hold, then
+    to the lower keeper index (:func:`decode_bev`, and HyperNEAT's sparse decision in kx.hyperneat.bev)."""
     best_v, best_i = pick(vals, h), h
-    for i in range(config.n_keepers):
+    for i in range(n_keepers):
         better = (vals[i] > best_v) & (h != i)
         best_v, best_i = jnp.where(better, vals[i], best_v), jnp.where(better, i, best_i)
     return best_i.astype(jnp.int32)

@@ -170,9 +170,6 @@ class CMAESEncoding(Encoding):
                               f"{self.n_out} outputs; {sim.name} needs {n_in} and {n_out}")
         return network_policy(sim, self.layout, self.hidden)
 
-    def policy_params(self, population):
-        return population
-
     def transfer_problems(self, source, state, seeding):
         out = []
         if seeding == "half":

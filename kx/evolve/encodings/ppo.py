@@ -208,9 +208,6 @@ class PPOEncoding(Encoding):
     def policy_for(self, sim):
         return greedy_policy(sim, self.ppo.hidden)
 
-    def policy_params(self, population):
-        return population
-
     def transfer_problems(self, source, state, seeding):
         out = []
         if seeding == "half":
