@@ -63,6 +63,8 @@ class PPOConfig:
     # more, the rollouts are still played (the budget is in episodes) but few of their decisions are learned from
     rollout: str = "smdp"  # "smdp": a rollout step is an SMDP step of every episode (the batch waits for the
     # slowest pass to land); "iteration": a world iteration, the episodes at a decision act (ROLLOUTS)
+    devices: int = 1  # the host devices the episodes are split over, data-parallel (:func:`make_block`): each
+    # device steps and learns from num_envs / devices episodes, the gradients of a minibatch summed over them
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
     # 100 updates, 0.40 after 400, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0, 200 test starts)
@@ -79,6 +81,11 @@ class PPOConfig:
         if self.learn_per_episode < 0 or (self.learn_per_episode and self.rollout != "iteration"):
             raise ValueError(f"learn_per_episode: allowed an integer >= 0, and > 0 only with rollout 'iteration', got "
                              f"{self.learn_per_episode} (rollout {self.rollout!r})")
+        if self.devices < 1 or self.num_envs % self.devices or self.resets % self.devices or (
+                (self.num_envs // self.devices * self.num_steps) % self.num_minibatches):
+            raise ValueError(f"devices: allowed an integer >= 1 that divides num_envs ({self.num_envs}) and resets "
+                             f"({self.resets}), leaving each device's num_envs x num_steps divisible by "
+                             f"num_minibatches ({self.num_minibatches}), got {self.devices}")
         if self.rollout not in ROLLOUTS:
             raise ValueError(f"rollout: allowed {', '.join(ROLLOUTS)}, got {self.rollout!r}")
         if self.network not in NETWORKS:
@@ -91,9 +98,9 @@ class PPOConfig:
             if self.network != "entity":
                 raise ValueError(f"mix: allowed only with the entity network (the {self.network} network's inputs "
                                  f"are one task's), got {self.mix}")
-            if self.num_envs % tasks or self.resets % tasks:
+            if self.num_envs % (tasks * self.devices) or self.resets % (tasks * self.devices):
                 raise ValueError(f"mix: num_envs ({self.num_envs}) and resets ({self.resets}) must divide among the "
-                                 f"{tasks} tasks, got {self.mix}")
+                                 f"{tasks} tasks on each of the {self.devices} devices, got {self.mix}")
 
 
 #: how a rollout steps its episodes. ``"smdp"``: ``num_steps`` SMDP steps of every episode
@@ -459,22 +466,34 @@ def make_land(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
     return land
 
 
-def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
+def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, axis: str | None = None):
     """``update(learner, key, lr) -> (learner, metrics)``: one rollout of ``num_steps`` SMDP steps (or world
     iterations: :data:`ROLLOUTS`) of the ``num_envs`` episodes with the sampled policy, then ``update_epochs``
     passes of PPO's clipped loss over its decisions in ``num_minibatches`` shuffled minibatches (fewer with
     ``max_minibatches`` or ``learn_per_episode``), at learning rate ``lr``. ``metrics``: the losses and
     entropy (means over the minibatches), and of the rollout: the episodes that ended, the sum of their
     returns, the episodes that shared a start (:meth:`kx.sim.gym.KeepAway.step_batch`) and the world's
-    iterations played."""
+    iterations played.
+
+    ``axis``: the name of a device axis the episodes are split over (:func:`make_block` with ``cfg.devices`` > 1;
+    ``cfg`` then holds one device's share of them): each device plays and learns from its own episodes, a
+    minibatch's gradient is the mean over the decisions of every device's minibatch (the devices' sums over
+    their counts), the devices learn from as many minibatches as the fullest needs, and the counts are the sums
+    over the devices, so that every device holds the same parameters and counters."""
     net = network(cfg)
     tx = optimiser(cfg)
     n_batch = cfg.num_envs * cfg.num_steps
+
+    def total(x):
+        return x if axis is None else jax.lax.psum(x, axis)
+
+    def own(key):
+        return key if axis is None else jax.random.fold_in(key, jax.lax.axis_index(axis))
     rollout = make_rollout(cfg, env, env_params)
     land = make_land(cfg, env, env_params)
 
     def update(learner: Learner, key: jax.Array, lr: jax.Array):
-        k_roll, k_epochs = jax.random.split(key)
+        k_roll, k_epochs = (own(k) for k in jax.random.split(key))
         (learner, ended, return_sum, shared, iterations), traj = rollout(learner, k_roll)
         if cfg.rollout == "iteration":
             (learner, e2, r2, s2, i2), (last_r, last_d, last_i) = land(learner, jax.random.fold_in(k_roll, 1))
@@ -483,12 +502,13 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
             adv, targets = gae_iterations(traj.reward * cfg.reward_scale, traj.value, traj.done, traj.valid,
                                           last_value, last_r * cfg.reward_scale, last_i, last_d, cfg.gamma,
                                           cfg.gae_lambda)
-            decided = traj.valid.sum(dtype=jnp.int32)
+            decided = total(traj.valid.sum(dtype=jnp.int32))
         else:
             _, last_value = net.apply(learner.params, learner.obs)
             adv, targets = gae(traj.reward * cfg.reward_scale, traj.value, traj.done, last_value, cfg.gamma,
                                cfg.gae_lambda, traj.iterations)
-            decided = jnp.int32(n_batch)
+            decided = total(jnp.int32(n_batch))
+        ended, return_sum, shared, iterations = (total(x) for x in (ended, return_sum, shared, iterations))
 
         used = min(cfg.num_minibatches, cfg.max_minibatches or cfg.num_minibatches)
 
@@ -496,6 +516,11 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
             t, a, tg = b
             grads, aux = jax.grad(loss, has_aux=True)(params, net.apply, t, a, tg, cfg.clip_eps, cfg.vf_coef,
                                                       cfg.ent_coef)
+            if axis is not None:  # the mean over every device's decisions: each device's mean times its count
+                n = jnp.float32(a.size) if t.valid is None else t.valid.sum(dtype=jnp.float32)
+                whole = jnp.maximum(total(n), 1.0)
+                grads = jax.tree.map(lambda g: total(g * n) / whole, grads)
+                aux = tuple(total(x * n) / whole for x in aux)
             step, opt_state = tx.update(grads, opt_state, params)
             return jax.tree.map(lambda p, u: p - lr * u, params, step), opt_state, jnp.stack(aux)
 
@@ -524,8 +549,11 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
             mb = jax.tree.map(lambda a: a.reshape((cfg.num_minibatches, -1) + a.shape[1:]), flat)
             size = n_batch // cfg.num_minibatches
             count = jnp.minimum((flat_valid.sum(dtype=jnp.int32) + size - 1) // size, used)
-            if cfg.learn_per_episode:
-                count = jnp.minimum(count, jnp.maximum((ended * cfg.learn_per_episode + size - 1) // size, 1))
+            if cfg.learn_per_episode:  # (ended: every device's; a device's share of it, rounded up)
+                share = ended if axis is None else -(-ended // jax.lax.psum(1, axis))
+                count = jnp.minimum(count, jnp.maximum((share * cfg.learn_per_episode + size - 1) // size, 1))
+            if axis is not None:  # every device the same number of steps: as many as the fullest needs
+                count = jax.lax.pmax(count, axis)
 
             def epoch(carry, k):
                 params, opt_state, sums = carry
@@ -588,8 +616,54 @@ def make_block(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, bl
     toward the next block; when the previous block's last update ended this block's episodes already, the
     block runs no update). The learning rate falls linearly from ``cfg.lr`` to 0 over the first
     ``anneal_episodes`` episodes (0: constant). ``metrics`` (also the learner's ``last_block``):
-    :data:`UPDATE_METRICS` summed over the block's updates, and ``updates``."""
-    update = make_update(cfg, env, env_params)
+    :data:`UPDATE_METRICS` summed over the block's updates, and ``updates``.
+
+    With ``cfg.devices`` > 1 the block runs data-parallel over the process's first ``devices`` devices
+    (``jax.shard_map``): the learner's episodes (its environment states, observations and returns) are split
+    over them, its parameters, optimiser state and counters held whole by each, and every update is
+    :func:`make_update`'s over a device axis."""
+    if cfg.devices == 1:
+        return _block(cfg, make_update(cfg, env, env_params), anneal_episodes, block)
+    from jax.sharding import PartitionSpec
+
+    from kx.sim import lanes
+
+    local = dataclasses.replace(cfg, num_envs=cfg.num_envs // cfg.devices, resets=cfg.resets // cfg.devices,
+                                devices=1)
+    run = _block(cfg, make_update(local, env, env_params, axis="lanes"), anneal_episodes, block)
+    whole = PartitionSpec()
+
+    def sharded(learner: Learner, key: jax.Array):
+        split = learner._replace(
+            params=whole, opt_state=whole, updates=whole, decisions=whole, episodes=whole, blocks=whole,
+            last_block=whole, returns=PartitionSpec("lanes"), env=lanes.lane_specs(learner.env),
+            obs=jax.tree.map(lambda a: PartitionSpec("lanes"), learner.obs))  # obs batch-first, env batch-last
+        return jax.shard_map(run, mesh=lanes.mesh(cfg.devices), in_specs=(split, whole), out_specs=(split, whole),
+                             check_vma=False)(learner, key)
+
+    return sharded
+
+
+def place(learner: Learner, cfg: PPOConfig) -> Learner:
+    """``learner`` laid out as :func:`make_block` runs it with ``cfg.devices`` > 1 (its episodes split over the
+    devices, the rest whole on each), so that a block's program compiles for one layout; as it is with one."""
+    if cfg.devices == 1:
+        return learner
+    from jax.sharding import NamedSharding, PartitionSpec
+
+    from kx.sim import lanes
+
+    mesh = lanes.mesh(cfg.devices)
+    whole = NamedSharding(mesh, PartitionSpec())
+    specs = jax.tree.map(lambda _: whole, learner)
+    specs = specs._replace(returns=NamedSharding(mesh, PartitionSpec("lanes")),
+                           env=jax.tree.map(lambda p: NamedSharding(mesh, p), lanes.lane_specs(learner.env)),
+                           obs=jax.tree.map(lambda a: NamedSharding(mesh, PartitionSpec("lanes")), learner.obs))
+    return jax.device_put(learner, specs)
+
+
+def _block(cfg: PPOConfig, update, anneal_episodes: int, block: int):
+    """:func:`make_block`'s loop of ``update``s."""
 
     def lr_at(episodes):
         if anneal_episodes <= 0:

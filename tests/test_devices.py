@@ -139,3 +139,51 @@ def test_bench_sim_last_line(tmp_path):
     value, unit, _, ratio, _, baseline = rest.replace("(", "").replace(")", "").split()
     assert name == "sim" and unit == "live-steps/s" and baseline == "reference"
     assert float(value) > 0 and float(ratio) > 1
+
+
+PPO_SCRIPT = textwrap.dedent("""
+    import jax, numpy as np
+    assert jax.local_device_count() == 2
+    from kx import ppo
+    from kx.sim.types import KeepAwayConfig, KeepAwayParams
+    sim, sp = KeepAwayConfig(), KeepAwayParams(max_iterations=300)
+    for rollout in ("iteration", "smdp"):
+        cfg = ppo.PPOConfig(rollout=rollout, num_envs=16, num_steps=8, num_minibatches=4, resets=4, hidden=16,
+                            update_epochs=2, devices=2)
+        env = ppo.environment(cfg, sim)
+        block = jax.jit(ppo.make_block(cfg, env, sp, 48, 0))
+        init = jax.jit(lambda k: ppo.init(k, cfg, env, sp))
+
+        def train(seed):
+            learner, ended = ppo.place(init(jax.random.key(seed)), cfg), 0
+            first = learner.params
+            for b in range(3):
+                learner, m = block(learner, jax.random.key(100 + b))
+                ended += int(m["episodes"])
+            return learner, ended, first
+
+        a, ended, first = train(0)
+        b, _, _ = train(0)
+        # every device holds the same parameters, optimiser state and counters (each its own copy, not gathered)
+        for x in jax.tree.leaves((a.params, a.opt_state, a.episodes, a.decisions, a.updates, a.last_block)):
+            shards = [np.asarray(s.data) for s in x.addressable_shards]
+            assert len(shards) == 2 and np.array_equal(shards[0], shards[1]), rollout
+        # the episodes are split: each device steps its half
+        assert sorted(s.data.shape[-1] for s in a.returns.addressable_shards) == [8, 8]
+        # the counts are every device's: the blocks' episodes add up to the learner's
+        assert int(a.episodes) == ended >= 3 * 48 and int(a.blocks) == 3 and int(a.updates) >= 3
+        # the same seed, the same training, bit for bit; and it trained (the weights moved)
+        for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b)):
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        assert any(not np.array_equal(np.asarray(x), np.asarray(y))
+                   for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(first)))
+    print("ok")
+""")
+
+
+@pytest.mark.slow  # ~30 s: PPO's programs compiled for two devices in a process of their own
+def test_ppo_data_parallel_over_two_devices_keeps_one_copy_of_the_learner_on_each(tmp_path):
+    """``ppo.devices = 2``: the episodes split over the devices, the parameters, optimiser state and counters the
+    same on each (every minibatch's gradient summed over them), the counts every device's, deterministic, for
+    both rollouts."""
+    _two_device_process(PPO_SCRIPT)

@@ -215,6 +215,17 @@ def test_bad_rollout_settings_are_refused_with_the_field_named():
         ppo.PPOConfig(learn_per_episode=10)
     with pytest.raises(ValueError, match="max_minibatches: allowed an integer >= 0"):
         ppo.PPOConfig(max_minibatches=-1)
+    # (the last: 8 minibatches divide the 4 x 2 steps of the rollout, not a device's 2 x 2)
+    for bad in ({"devices": 0}, {"devices": 3}, {"devices": 16, "resets": 8},
+                {"devices": 2, "num_envs": 4, "num_steps": 2, "resets": 2, "num_minibatches": 8}):
+        with pytest.raises(ValueError, match=r"devices: allowed an integer >= 1 that divides num_envs"):
+            ppo.PPOConfig(**bad)
+    from kx.evolve import config as cfg_lib
+
+    n_dev = jax.local_device_count()
+    with pytest.raises(cfg_lib.ConfigError, match=rf"ppo.devices: allowed an integer in \[1, {n_dev}\] \(this "
+                                                  r"process's devices\), got"):
+        cfg_lib.validate(cfg_lib.load(cfg_lib.CONFIG_DIR / "ppo_3v2.py", [f"ppo.devices={n_dev + 1}"]))
 
 
 @pytest.mark.parametrize("hidden", [16, 64])

@@ -359,7 +359,8 @@ def from_dict(d: dict) -> ml_collections.ConfigDict:
 ADDED_LATER = {"novelty.normalisation": "population", "novelty.archive_rule": "paper", "novelty.behaviour": "paper",
                "hyperneat.impl": "auto",
                **{f"{section}.{field}": value for section in ("ppo", "ppo_entity")
-                  for field, value in (("rollout", "smdp"), ("max_minibatches", 0), ("learn_per_episode", 0))}}
+                  for field, value in (("rollout", "smdp"), ("max_minibatches", 0), ("learn_per_episode", 0),
+                                       ("devices", 1))}}
 
 
 def with_later_fields(d: dict) -> dict:

@@ -163,6 +163,9 @@ class PPOEncoding(Encoding):
         for f in ("max_minibatches", "learn_per_episode"):
             need(is_int(c[f]) and 0 <= c[f] <= 1_000_000, f"{s}.{f}", "an integer in [0, 1000000] (0: no limit)", c[f])
         need(isinstance(c.rollout, str), f"{s}.rollout", f"one of {', '.join(ppo.ROLLOUTS)}", c.rollout)
+        n_dev = jax.local_device_count()
+        need(is_int(c.devices) and 1 <= c.devices <= n_dev, f"{s}.devices",
+             f"an integer in [1, {n_dev}] (this process's devices)", c.devices)
         mix = self._mix(c, sim)
         try:
             self.ppo = ppo.PPOConfig(network=self.network, mix=mix, **{
@@ -189,6 +192,7 @@ class PPOEncoding(Encoding):
         """Trains a block of ``episodes_per_generation`` episodes, then hands the run loop the network's new
         weights (a population of one): generation ``g`` plays the weights after ``g + 1`` blocks, so the
         last block is measured too, and the untrained network never is."""
+        state = ppo.place(state, self.ppo)  # (a no-op once placed: a block's output is laid out as its input)
         state, _ = _block_program(self.ppo, self.sim, self.sim_params, self.block, self.anneal)(state, key)
         return _as_population(state.params), state
 
