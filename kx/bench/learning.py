@@ -8,7 +8,7 @@ import time
 from kx.bench.common import LEARNING_TEST_SEED, sd
 
 
-def _train_and_test(config: str | None, seeds, starts, keys, log_name: str, targets=()):
+def _train_and_test(config: str | None, seeds, starts, keys, log_name: str, targets=(), overrides=()):
     """Each seed's run of ``config`` through the run loop (no run directory), its validated champion
     played on ``starts`` and, unchanged, on each target task's ``(sim, starts)`` of ``targets``; returns
     the test figures, the validated-champion curves, the seconds and the target figures ``[seed][task]``.
@@ -21,7 +21,7 @@ def _train_and_test(config: str | None, seeds, starts, keys, log_name: str, targ
     test, curves, secs, transfer = [], [], [], []
     for seed in seeds:
         t0 = time.perf_counter()
-        trainer = run_lib.Trainer(cfg_lib.load(config, ["gif=false", f"seed={seed}"]))
+        trainer = run_lib.Trainer(cfg_lib.load(config, ["gif=false", f"seed={seed}", *overrides]))
         state, rows = run_lib.evolve_in_memory(trainer)
         f = float(trainer.evaluate(stack([state.champion]), starts, keys.eval).fitness.mean())
         test.append(f)
@@ -65,12 +65,14 @@ def run(args) -> None:
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     configs = {"NEAT": None, "HyperNEAT": "configs/hyperneat_3v2.py", "CMA-ES": "configs/cma_es_3v2.py",
                "PPO": "configs/ppo_3v2.py", "PPO-iteration": "configs/ppo_3v2_iteration.py",
-               "PPO-entity": "configs/ppo_entity_3v2.py"}
+               "PPO-iteration-2dev": "configs/ppo_3v2_iteration.py", "PPO-entity": "configs/ppo_entity_3v2.py"}
+    # a method that is a config with overrides: PPO's iteration shape data-parallel over two devices
+    overrides = {"PPO-iteration-2dev": ("ppo.devices=2",)}
     chosen = [m.strip() for m in args.methods.split(",") if m.strip()]
     if not chosen or any(m not in configs for m in chosen):
         raise SystemExit(f"--methods: allowed a comma-separated subset of {tuple(configs)}, got {args.methods!r}")
     configs = {k: v for k, v in configs.items() if k in chosen}
-    loaded = {k: cfg_lib.load(v, ["gif=false"]) for k, v in configs.items()}
+    loaded = {k: cfg_lib.load(v, ["gif=false", *overrides.get(k, ())]) for k, v in configs.items()}
     exp = cfg_lib.validate(next(iter(loaded.values())))
     sim, params = exp.sim, exp.sim_params
     keys = streams.test(LEARNING_TEST_SEED)
@@ -100,7 +102,7 @@ def run(args) -> None:
                                                   key=keys.eval).fitness.mean()) for n, make in BASELINES.items()}
     results = {}
     for name, path in configs.items():
-        results[name] = _train_and_test(path, seeds, starts, keys, name, targets)
+        results[name] = _train_and_test(path, seeds, starts, keys, name, targets, overrides.get(name, ()))
         # a finished method's compiled programs are released: each holds memory maps of the process, and
         # three methods' would near the kernel's limit (kx.runtime.check_maps)
         before = runtime.memory_maps()
