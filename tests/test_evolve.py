@@ -56,6 +56,7 @@ def test_neat_policy_decides_on_the_output_sums_not_on_saturated_sigmoids():
     assert decide([-1.0, -3.0, 6.0]) == order[2]
 
 
+@pytest.mark.slow  # ~6 s: every run test of the default suite evaluates NEAT populations through the simulator
 def test_neat_population_evaluates_through_the_simulator():
     sim, params = KeepAwayConfig.from_task("3v2"), KeepAwayParams()
     config, nparams = presets.keepaway(population_size=6, species_capacity=4)

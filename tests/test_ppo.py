@@ -171,7 +171,7 @@ def test_an_iteration_rollouts_update_learns_from_its_decisions_alone_and_limits
     def updated(**kw):
         cfg = ppo.PPOConfig(**base, **kw)
         env = ppo.environment(cfg, sim)
-        learner = ppo.init(jax.random.key(0), cfg, env, params)
+        learner = jax.jit(lambda k: ppo.init(k, cfg, env, params))(jax.random.key(0))  # one program, not op by op
         out, m = jax.jit(ppo.make_update(cfg, env, params))(learner, jax.random.key(1), jnp.float32(1e-3))
         return out, m
 

@@ -38,14 +38,14 @@ def test_resuming_from_a_checkpoint_ends_bit_for_bit_where_the_uninterrupted_run
 def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_size():
     """Two networks' weights, as the evaluator plays them (each lane its own row of the table, alone), decide as
     the network's forward pass on the same tokens does (argmax of its logits, to a keeper), in 3v2 and,
-    unchanged, in 4v3, 5v3 and 6v4; each lane follows its own network."""
+    unchanged, in 6v4; each lane follows its own network."""
     exp = cfg_lib.validate(cfg_lib.load(cfg_lib.CONFIG_DIR / "ppo_entity_3v2.py", TINY))
     enc = exp.encoding
     net = ppo.network(enc.ppo)
     _, first = gym.KeepAway(exp.sim).reset_batch(jax.random.key(0), 4, KeepAwayParams())
     tokens = entities.batch_first(entities.tokens(first.world, exp.sim))
     champion, last = (net.init(jax.random.key(i), jax.tree.map(lambda a: a[0], tokens)) for i in (1, 2))
-    for k, t in ((3, 2), (4, 3), (5, 3), (6, 4)):
+    for k, t in ((3, 2), (6, 4)):  # the source's team and the largest (4v3 and 5v3: test_entity.py's tokens)
         sim = KeepAwayConfig(n_keepers=k, n_takers=t)
         _, starts = gym.KeepAway(sim).reset_batch(jax.random.key(k), 64, KeepAwayParams())
         world = starts.world

@@ -59,6 +59,7 @@ def _same(a, b) -> bool:
                                                                             strict=True))
 
 
+@pytest.mark.slow  # ~10 s: the run loop's transfer is the default suite's on NEAT (test_transfer.py)
 def test_a_transferred_run_starts_from_the_source_weights_with_a_fresh_optimiser(trained):
     src_dir = trained[0]
     target = lambda *extra: cfg_lib.load(REPO / "configs" / "ppo_4v3.py", [  # noqa: E731
