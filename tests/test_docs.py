@@ -44,3 +44,11 @@ def test_every_relative_link_and_image_exists(doc):
         if not path.exists():
             missing.append(target)
     assert not missing, f"{doc.relative_to(ROOT)}: links to missing files: {missing}"
+
+
+def test_scripts_readme_lists_every_script_and_no_other():
+    text = (ROOT / "scripts" / "README.md").read_text()
+    named = set(re.findall(r"`([\w.-]+\.(?:py|sh))`", text))
+    present = {p.name for p in (ROOT / "scripts").iterdir() if p.suffix in (".py", ".sh")}
+    assert present - named == set(), f"scripts/README.md does not list {sorted(present - named)}"
+    assert named - present == set(), f"scripts/README.md lists missing scripts {sorted(named - present)}"
