@@ -8,7 +8,7 @@ $(STAMP): pyproject.toml
 	python3 -m venv .venv
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
-	$(PY) -m kx.native || true  # HyperNEAT's native decision kernel into the per-user cache (optional: one line says why not)
+	$(PY) -m kx.hyperneat.native || true  # HyperNEAT's native decision kernel into the per-user cache (optional: one line says why not)
 	touch $(STAMP)
 
 run: $(STAMP)  ## the main job

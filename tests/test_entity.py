@@ -1,7 +1,9 @@
 """The entity view (``kx.sim.entities``) and the size-invariant actor-critic that reads it
-(``kx.ppo.EntityActorCritic``): features against the positions by hand, the actions' keepers, the environment's
+(``kx.evolve.encodings.ppo.algorithm.EntityActorCritic``): features against the positions by hand, the actions'
+keepers, the environment's
 entity steps against its fixed steps with the same passes, the network's equivariance to teammates and invariance
-to takers for every team size from 3v2 to 6v4, and PPO training it (``kx.ppo.make_train``) deterministically in
+to takers for every team size from 3v2 to 6v4, and PPO training it (``kx.evolve.encodings.ppo.algorithm.make_train``)
+deterministically in
 3v2 and 6v4."""
 
 import math
@@ -11,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from kx import ppo
+from kx.evolve.encodings.ppo import algorithm as ppo
 from kx.sim import entities, gym, observe
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 

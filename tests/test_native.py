@@ -1,4 +1,5 @@
-"""kx.native's ``kx_bev_sums`` against the compiled XLA code of kx.hyperneat.bev.sparse_outputs: the same sums bit
+"""kx.hyperneat.native's ``kx_bev_sums`` against the compiled XLA code of kx.hyperneat.bev.sparse_outputs: the same
+sums bit
 for bit, under the suite's flags (multiply-adds rounded twice) and, in a process of its own, under XLA's default
 flags (fused, as the run loop compiles); the same episodes in the evaluator; the choice of implementation and
 its errors."""
@@ -14,14 +15,13 @@ import numpy as np
 import pytest
 from substrates import random_table
 
-from kx import native
-from kx.hyperneat import bev
+from kx.hyperneat import bev, native
 from kx.sim import env, samples
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
 W = 20
 
-pytestmark = pytest.mark.skipif(bool(native.unavailable()), reason=f"kx.native: {native.unavailable()}")
+pytestmark = pytest.mark.skipif(bool(native.unavailable()), reason=f"kx.hyperneat.native: {native.unavailable()}")
 
 
 def _table(key, g):

@@ -1,4 +1,5 @@
-"""Where and how kx.native's library is built, whether or not it can run here: a per-user cache (KX_NATIVE_CACHE,
+"""Where and how kx.hyperneat.native's library is built, whether or not it can run here: a per-user cache
+(KX_NATIVE_CACHE,
 XDG_CACHE_HOME, ~/.cache), one build for processes that start together, warnings shown (XLA's headers as system
 headers, no blanket suppression), one clear line where it cannot be built; and the run config's choice of
 implementation (``hyperneat.impl``)."""
@@ -12,8 +13,8 @@ import sys
 
 import pytest
 
-from kx import native
 from kx.evolve import config as cfg_lib
+from kx.hyperneat import native
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -69,7 +70,8 @@ def test_a_compiler_warning_is_shown(monkeypatch, tmp_path, capsys):
     monkeypatch.setenv("KX_NATIVE_CACHE", str(tmp_path / "cache"))
     monkeypatch.setenv("CXX", str(_fake_compiler(tmp_path, stderr="bev_sums.cc:1: warning: unused variable")))
     native.build()
-    assert "kx.native: the compiler warns:\nbev_sums.cc:1: warning: unused variable" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "kx.hyperneat.native: the compiler warns:\nbev_sums.cc:1: warning: unused variable" in err
 
 
 def test_a_failed_build_says_why_and_leaves_nothing(monkeypatch, tmp_path):
@@ -88,15 +90,16 @@ def test_python_m_kx_native_fails_with_one_clear_line(case, tmp_path):
     env = {**os.environ, "KX_NATIVE_CACHE": str(tmp_path / "cache"), "JAX_PLATFORMS": "cpu"}
     if case == "no compiler":
         env["CXX"] = "no-such-compiler"
-        want = "kx.native: not built (no C++ compiler: 'no-such-compiler' is not on PATH"
+        want = "kx.hyperneat.native: not built (no C++ compiler: 'no-such-compiler' is not on PATH"
     elif case == "cache not writable":  # a folder under a file: no user, root included, can create it
         (tmp_path / "file").write_text("")
-        env["KX_NATIVE_CACHE"], want = str(tmp_path / "file" / "cache"), "kx.native: not built (the cache folder "
+        env["KX_NATIVE_CACHE"] = str(tmp_path / "file" / "cache")
+        want = "kx.hyperneat.native: not built (the cache folder "
     else:
         env["CXX"] = str(_fake_compiler(tmp_path, stderr="x.cc:3: error: oops\\nnote: more", status=1))
-        want = "kx.native: not built (the compiler failed: x.cc:3: error: oops)"
-    done = subprocess.run([sys.executable, "-m", "kx.native"], env=env, capture_output=True, text=True, timeout=300,
-                          cwd=tmp_path)
+        want = "kx.hyperneat.native: not built (the compiler failed: x.cc:3: error: oops)"
+    done = subprocess.run([sys.executable, "-m", "kx.hyperneat.native"], env=env, capture_output=True, text=True,
+                          timeout=300, cwd=tmp_path)
     assert done.returncode == 1 and done.stdout == ""
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(want), done.stderr

@@ -1,4 +1,5 @@
-"""PPO's parts (kx.ppo): GAE and the clipped loss against hand computations, and the jitted training
+"""PPO's parts (kx.evolve.encodings.ppo.algorithm): GAE and the clipped loss against hand computations, and the jitted
+training
 vmapped over seeds as seed by seed, deterministic."""
 
 import jax
@@ -6,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from kx import ppo
+from kx.evolve.encodings.ppo import algorithm as ppo
 from kx.sim import gym
 from kx.sim.types import KeepAwayConfig, KeepAwayParams
 
@@ -68,9 +69,10 @@ def test_the_clipped_loss_by_hand():
 
 
 def test_the_iteration_rollouts_gae_is_the_smdp_gae_of_the_same_steps():
-    """:func:`kx.ppo.gae_iterations` over world iterations (each SMDP step's reward spread over its iterations,
+    """:func:`kx.evolve.encodings.ppo.algorithm.gae_iterations` over world iterations (each SMDP step's reward spread
+    over its iterations,
     the steps at a decision valid, the rollout cut in the middle of passes that land afterwards) gives each
-    valid step :func:`kx.ppo.gae`'s advantage of the same SMDP steps, ends included."""
+    valid step :func:`kx.evolve.encodings.ppo.algorithm.gae`'s advantage of the same SMDP steps, ends included."""
     rng = np.random.default_rng(0)
     steps, n, gamma, lam = 40, 6, 0.99, 0.95
     r = rng.random((steps, n)).astype(np.float32)
@@ -230,9 +232,11 @@ def test_bad_rollout_settings_are_refused_with_the_field_named():
 
 @pytest.mark.parametrize("hidden", [16, 64])
 def test_the_evaluators_greedy_decision_is_the_trained_networks(hidden):
-    """The evaluator plays a PPO champion by its own forward pass (:func:`kx.ppo.actor_logits_batch_last`, through
+    """The evaluator plays a PPO champion by its own forward pass
+    (:func:`kx.evolve.encodings.ppo.algorithm.actor_logits_batch_last`, through
     the run loop's policy :func:`kx.evolve.encodings.ppo.greedy_policy`): on random weights and start states its
-    logits are :class:`kx.ppo.ActorCritic`'s within float tolerance and its decisions are the network's argmax,
+    logits are :class:`kx.evolve.encodings.ppo.algorithm.ActorCritic`'s within float tolerance and its decisions are
+    the network's argmax,
     exactly, so a reported champion is the network that was trained."""
     from kx.evolve.encodings.ppo import greedy_policy
     from kx.sim import env, observe

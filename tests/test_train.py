@@ -155,7 +155,7 @@ def test_run_directory_holds_config_metrics_plot_checkpoints_and_gif(trained):
     runtime = json.loads((run_dir / "runtime.json").read_text())["sessions"]
     assert len(runtime) == 1 and runtime[0]["after_generation"] == 0 and runtime[0]["jax"] == jax.__version__
     if method == "hyperneat":
-        from kx import native
+        from kx.hyperneat import native
         expect = "xla" if native.unavailable() else "native"
         assert runtime[0]["decision_sums"] == expect and runtime[0]["chosen"] == "auto"
         assert out.count("decision: sums by the ") == 1

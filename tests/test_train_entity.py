@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from test_train import _runs, resume_here  # noqa: F401  (the session cache of trained runs it uses)
 
-from kx import ppo
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
 from kx.evolve.encodings import ppo as ppo_enc
+from kx.evolve.encodings.ppo import algorithm as ppo
 from kx.evolve.errors import ConfigError
 from kx.sim import entities, gym
 from kx.sim.policies import Shared

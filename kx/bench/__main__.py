@@ -31,7 +31,7 @@ baseline is measured in the same run (these machines are shared and noisy).
   populations (committed fixtures, ``scripts/make_policy_fixtures.py``), each a ratio to the heuristic's
   measured in the same run, and each decision alone.
 * ``protocol``: a fixed small slice of the Table 3 protocol run by one process and by several
-  (``--processes 1 2``; kx.processes): runs per hour for each, the same results checked.
+  (``--processes 1 2``; kx.experiments.processes): runs per hour for each, the same results checked.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
 """

@@ -29,7 +29,7 @@ episodes are the shortest, so the evaluator's fixed costs weigh most on it). ``h
 the run loop plays: :func:`kx.hyperneat.bev.bev_policy` with ``skip_idle`` (no decision where nobody holds
 the ball or the episode is over); ``hyperneat_every_state`` decides on every state as the dense reference
 does (the same episodes bit for bit, and so the same mean fitness). HyperNEAT's sums run on the native kernel
-(:mod:`kx.native`) where it can be built, and the benchmark says so; ``hyperneat_xla`` is then the same
+(:mod:`kx.hyperneat.native`) where it can be built, and the benchmark says so; ``hyperneat_xla`` is then the same
 policy on the compiled XLA code, measured in the same run (the same episodes).
 
 **Samples.** The policies are sampled in turn (one sample of each, ``--repeats`` times, as ``kx.bench
@@ -210,7 +210,8 @@ def run(args) -> None:
                                          policies["hyperneat"][1])
     # what the run loop plays, on the compiled XLA code instead of the native kernel (the same episodes)
     why = bev.native_runs(enc.image)
-    print(f"hyperneat's sums: {'the native kernel (kx.native)' if not why else f'the XLA code ({why})'}", flush=True)
+    sums = "the native kernel (kx.hyperneat.native)" if not why else f"the XLA code ({why})"
+    print(f"hyperneat's sums: {sums}", flush=True)
     if not why:
         policies["hyperneat_xla"] = (bev.bev_policy(exp.sim, enc.image, enc.decision, enc.substrate_activation,
                                                     skip_idle=True, impl="xla"), policies["hyperneat"][1])

@@ -1,7 +1,8 @@
 """``python -m kx.bench ppo``: environment steps per second of PPO's training against the evaluator's live
 steps per second for NEAT's policy, measured in the same run, in 4v3.
 
-**PPO's side** is what a ``method = "ppo"`` run pays: the update of :func:`kx.ppo.make_update` (a rollout
+**PPO's side** is what a ``method = "ppo"`` run pays: the update of
+:func:`kx.evolve.encodings.ppo.algorithm.make_update` (a rollout
 of ``num_envs x num_steps`` SMDP steps of the sampled policy through the environment's batched step, then
 ``update_epochs`` passes of the clipped loss over it) with ``configs/ppo_4v3.py``'s settings (64 episodes
 x 64 steps, 4 epochs of 4 minibatches, 2 x 64 tanh units). A fresh network loses the ball within a few
@@ -39,10 +40,10 @@ def run(args) -> None:
     import jax.numpy as jnp
     import numpy as np
 
-    from kx import ppo
     from kx.bench.policies import evaluation_work, load_fixture, sample
     from kx.evolve import config as cfg_lib
     from kx.evolve import streams
+    from kx.evolve.encodings.ppo import algorithm as ppo
     from kx.sim import env
 
     trainer, population, meta = load_fixture("neat")

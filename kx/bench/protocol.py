@@ -1,5 +1,5 @@
 """``python -m kx.bench protocol --processes 1 2``: a fixed small slice of the Table 3 protocol run by one
-process and by several (:mod:`kx.processes`), runs per hour for each.
+process and by several (:mod:`kx.experiments.processes`), runs per hour for each.
 
 The slice: NEAT, fitness transfer to 4v3, ``--protocol-runs`` runs a cell (their 3v2 sources and their targets),
 ``--protocol-generations`` generations a run, 100 test trials. Each process count runs the whole command

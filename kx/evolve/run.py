@@ -81,7 +81,8 @@ RUNTIME_FILE = "runtime.json"
 def describe_implementation(impl: dict) -> str:
     """One line of an encoding's :meth:`~kx.evolve.encoding.Encoding.implementation`."""
     if impl.get("decision_sums") == "native":
-        return f"sums by the native kernel (kx.native, {impl['library']}; hyperneat.impl = {impl['chosen']!r})"
+        return (f"sums by the native kernel (kx.hyperneat.native, {impl['library']}; "
+                f"hyperneat.impl = {impl['chosen']!r})")
     why = f": {impl['why_not_native']}" if impl.get("why_not_native") else ""
     return f"sums by the compiled XLA code (hyperneat.impl = {impl['chosen']!r}{why})"
 

@@ -28,7 +28,7 @@ def _list(text: str) -> tuple[str, ...]:
 
 
 def _processes_args(p: argparse.ArgumentParser) -> None:
-    """The options of a command that runs under several processes (kx.processes, docs/cluster.md)."""
+    """The options of a command that runs under several processes (kx.experiments.processes, docs/cluster.md)."""
     g = p.add_argument_group("several processes (docs/cluster.md)")
     g.add_argument("--processes", type=int, default=1,
                    help="start this many local processes of the command, its runs dealt among them (testing)")
@@ -113,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     _processes_args(s)
     args = p.parse_args(argv)
 
-    from kx import processes
+    from kx.experiments import processes
 
     shard = processes.ALONE
     if args.command not in ("report", "confirm", "reproduce"):
@@ -152,7 +152,7 @@ def _command(args: argparse.Namespace, shard) -> int:
     """The command of ``args``, in process ``shard``; its exit status."""
     from kx.evolve.config import ConfigError
     from kx.evolve.errors import RunError
-    from kx.processes import ProcessError
+    from kx.experiments.processes import ProcessError
 
     try:
         if args.command == "report":

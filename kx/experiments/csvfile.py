@@ -43,7 +43,7 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
 
 # ------------------------------------------------------------------------------------ several processes
 #
-# Under several processes (kx.processes) each writes the rows of the runs it trains to a results file of its
+# Under several processes (kx.experiments.processes) each writes the rows of the runs it trains to a results file of its
 # own beside the experiment's (results.process<k>.csv); the leader merges them into the one file.
 
 def process_path(path: str | pathlib.Path, index: int) -> pathlib.Path:

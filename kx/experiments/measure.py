@@ -17,11 +17,11 @@ from typing import Callable, Iterator
 
 import ml_collections
 
-from kx import processes
 from kx.evolve import checkpoint, streams
 from kx.evolve import group as group_lib
 from kx.evolve import run as run_lib
 from kx.evolve.encoding import stack
+from kx.experiments import processes
 from kx.sim import env
 
 
@@ -81,7 +81,8 @@ class Finished:
     wall: float  # seconds the run took on the machine with its group: the group's time from the start of
     # this training to its end, plus, for a run resumed from a checkpoint, its generations before the resumption
     share: int  # the run is charged 1/share of its group's time: the group's size, times the local processes
-    # sharing the machine's cores (kx.processes.machine_sharers), so that it is the run's share of the machine
+    # sharing the machine's cores (kx.experiments.processes.machine_sharers), so that it is the run's share of the
+    # machine
 
     @property
     def max_fitness(self) -> float:

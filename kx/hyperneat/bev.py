@@ -37,7 +37,7 @@ the whole 96 MB table as from one genome's 640 KB, and HyperNEAT's whole step co
 heuristic's. Reading each lane's weights of a row one after another inside the chains of multiply-adds,
 and leaving the padding out, halved it (5.6-6.9 times, the machine's load moving the figure); the sums
 are the same bit for bit. Since 2026-12-05 the authors' image's sums run by default on a native kernel
-(:mod:`kx.native`, ``impl``): each lane computes its own image and reads only its own entries, where the
+(:mod:`kx.hyperneat.native`, ``impl``): each lane computes its own image and reads only its own entries, where the
 compiled code runs a batch's lanes in lockstep up to its longest list; the same sums bit for bit, with
 the multiply-adds rounded as this code's are under the process's flags (:func:`chain_is_fused`). See
 docs/hyperneat.md, "What it costs" and "A native decision".
@@ -51,7 +51,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx import native
+from kx.hyperneat import native
 from kx.neat.activations import ACTIVATIONS, INCREASING
 from kx.sim import observe
 from kx.sim.ops import col, fenced, pick
@@ -270,7 +270,7 @@ def _agent_sums(w_flat, b_flat, n: int, index, rows, a_cell, a_val):
 
 
 def native_runs(image: str) -> str:
-    """Why :func:`sparse_outputs` cannot run the native kernel (``kx.native``'s ``kx_bev_sums``) for this
+    """Why :func:`sparse_outputs` cannot run the native kernel (``kx.hyperneat.native``'s ``kx_bev_sums``) for this
     image in this process, or "" where it can: it computes the authors' image (the default; the paper image's
     clip stays with the XLA code) on the CPU backend, where the library could be built."""
     if image != "authors":
@@ -309,7 +309,7 @@ def sparse_outputs(table: dict, index: jax.Array, rows: jax.Array, state: State,
     clip changes path cells (:func:`_needs_path_clip`: 5v3 and 6v4), every entry of
     :func:`sparse_image` is taken.
 
-    ``impl`` (:data:`IMPLS`): ``"auto"`` runs the native kernel (``kx.native``, :func:`native_runs`) where
+    ``impl`` (:data:`IMPLS`): ``"auto"`` runs the native kernel (``kx.hyperneat.native``, :func:`native_runs`) where
     it can, one lane at a time over its own list, with multiply-adds rounded as the XLA code's are under the
     process's flags (:func:`chain_is_fused`): the same sums bit for bit, a lane that is not busy included
     (its agents add ``0 * w``). ``"native"`` refuses to run without it."""

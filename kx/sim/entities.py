@@ -1,6 +1,7 @@
 """The holder's view as entity tokens: one for the holder, one per teammate, one per taker, for any team size.
 
-A size-invariant policy (:class:`kx.ppo.EntityActorCritic`) reads a set of tokens instead of a fixed vector, as
+A size-invariant policy (:class:`kx.evolve.encodings.ppo.algorithm.EntityActorCritic`) reads a set of tokens instead
+of a fixed vector, as
 the multi-agent literature's entity encoders do (pooling over entities, DeepSets; self-attention over entity
 tokens, UPDeT and TransfQMix). Every feature is one a keeper can see from the holder's place, on the scales of
 the fixed layout (:mod:`kx.sim.observe`: distances over the field's diagonal, angles over pi):
@@ -84,6 +85,6 @@ def tokens(state: State, config: KeepAwayConfig) -> dict[str, jax.Array]:
 
 def batch_first(obs: dict[str, jax.Array]) -> dict[str, jax.Array]:
     """:func:`tokens` of one batch axis, batch first: ``holder [B, 4]``, ``mates [B, K - 1, 6]``, ``takers [B, T,
-    4]`` (what :class:`kx.ppo.EntityActorCritic` reads)."""
+    4]`` (what :class:`kx.evolve.encodings.ppo.algorithm.EntityActorCritic` reads)."""
     return {"holder": jnp.moveaxis(obs["holder"], -1, 0), "mates": jnp.moveaxis(obs["mates"], -1, 0),
             "takers": jnp.moveaxis(obs["takers"], -1, 0)}

@@ -56,7 +56,8 @@ class HyperNEATEncoding(NEATEncoding):
                  max_add_links=0, resolution=20, distance_input=True, image="authors",
                  decision="cells", substrate_activation="bipolar_sigmoid",
                  # how the decision's sums are computed (kx.hyperneat.bev.IMPLS: the same bits whichever):
-                 # auto the native kernel (kx.native) where it runs, else the XLA code; xla or native force one
+                 # auto the native kernel (kx.hyperneat.native) where it runs, else the XLA code; xla or native force
+                 # one
                  impl="auto")
         return ml_collections.ConfigDict(c)
 
@@ -129,7 +130,7 @@ class HyperNEATEncoding(NEATEncoding):
         """Which code computes the decision's sums in this process (:func:`kx.hyperneat.bev.native_runs`)."""
         why = "" if self.impl == "xla" else native_runs(self.image)
         if self.impl != "xla" and not why:
-            from kx import native
+            from kx.hyperneat import native
 
             return {"decision_sums": "native", "chosen": self.impl, "library": str(native.library_path())}
         return {"decision_sums": "xla", "chosen": self.impl, **({"why_not_native": why} if why else {})}

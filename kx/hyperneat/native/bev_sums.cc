@@ -10,7 +10,7 @@
 //
 // `fused`: whether each multiply-add rounds once (std::fma) or twice (a product, then a sum). XLA CPU fuses
 // the policy's chain into fused multiply-adds under its default flags and not at backend optimisation level
-// 0; kx.native probes which the process's flags do and passes it here.
+// 0; kx.hyperneat.native probes which the process's flags do and passes it here.
 //
 // The image arithmetic is the policy's (kx.hyperneat.bev._image_parts, the "authors" branch): every operation
 // is one IEEE operation (a division, a square root, an addition), and the digital line's floor is exact
@@ -97,7 +97,7 @@ inline float MultiplyAdd(float v, float w, float acc) {
   if constexpr (kFused) {
     return std::fma(v, w, acc);
   } else {
-    return acc + v * w;  // two roundings: kx.native compiles with -ffp-contract=off, so no fma is formed
+    return acc + v * w;  // two roundings: kx.hyperneat.native compiles with -ffp-contract=off, so no fma is formed
   }
 }
 

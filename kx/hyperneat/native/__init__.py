@@ -7,7 +7,7 @@ list of path steps and reads each weight with a scalar gather inside a vectorise
 same sums bit for bit (tests/test_native.py) at a fraction of the cost (docs/hyperneat.md, "A native
 decision").
 
-The library is built by ``python -m kx.native`` (which ``make`` runs at set-up), or on first use, into a
+The library is built by ``python -m kx.hyperneat.native`` (which ``make`` runs at set-up), or on first use, into a
 per-user cache as JAX's compilation cache is (``$KX_NATIVE_CACHE``, else
 ``$XDG_CACHE_HOME/kx/native``, else ``~/.cache/kx/native``), named by a hash of its source, the compiler and
 its flags, jaxlib's version and the CPU's model and flags, so that a change of any of them builds it again.
@@ -101,7 +101,7 @@ def build() -> pathlib.Path:
             if done.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} failed:\n{done.stderr.strip()}")
             if done.stderr.strip():  # a warning of kx's own source: shown, never hidden
-                print(f"kx.native: the compiler warns:\n{done.stderr.strip()}", file=sys.stderr)
+                print(f"kx.hyperneat.native: the compiler warns:\n{done.stderr.strip()}", file=sys.stderr)
             os.replace(tmp, path)
         finally:
             if os.path.exists(tmp):
@@ -140,7 +140,7 @@ def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy
 
     why = unavailable()
     if why:
-        raise RuntimeError(f"kx.native: not available ({why})")
+        raise RuntimeError(f"kx.hyperneat.native: not available ({why})")
     if busy is None:
         busy = jnp.ones(index.shape, bool)
     i32 = functools.partial(jnp.asarray, dtype=jnp.int32)
@@ -154,7 +154,7 @@ def bev_sums(table: dict, index: jax.Array, rows: jax.Array, state, config, busy
 
 
 def main() -> int:
-    """``python -m kx.native``: builds the library (the set-up runs it); its path, or one line saying why not
+    """``python -m kx.hyperneat.native``: builds the library (the set-up runs it); its path, or one line saying why not
     and exit status 1."""
     try:
         print(build())
@@ -162,7 +162,8 @@ def main() -> int:
     except RuntimeError as e:
         reason = str(e).splitlines()[0] if "failed:" not in str(e) else "the compiler failed: " + " | ".join(
             ln for ln in str(e).splitlines()[1:] if "error" in ln)[:300]
-        print(f"kx.native: not built ({reason}); kx runs its compiled XLA code instead (the same results, slower)",
+        print(f"kx.hyperneat.native: not built ({reason}); "
+              "kx runs its compiled XLA code instead (the same results, slower)",
               file=sys.stderr)
         return 1
 

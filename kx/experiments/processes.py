@@ -170,16 +170,13 @@ class Meeting:
             self._stop.wait(self.heartbeat_s)
 
     def _check_others(self, arrived: set[str], name: str) -> None:
-        failed = self.dir / self.token / "failed"
-        if failed.is_dir():
-            for f in sorted(failed.iterdir()):
-                if not f.name.startswith("."):
-                    raise ProcessError(f"process {f.name} of {self.count} stopped: {_read(f) or 'no reason given'}")
+        self._check_failed()
         now = time.monotonic()
         for i in range(self.count):
             if i == self.index or str(i) in arrived:
                 continue
             if (self.dir / self.token / "done" / str(i)).exists():
+                self._check_failed()  # a process that fails writes failed/<id> before done/<id>
                 raise ProcessError(f"process {i} of {self.count} finished without reaching the barrier {name!r} "
                                    "(the processes ran different commands?)")
             beat = _read(self.dir / self.token / "alive" / str(i))
@@ -189,6 +186,13 @@ class Meeting:
             elif now - since > self.dead_after_s:
                 raise ProcessError(f"process {i} of {self.count}: no sign of life for {self.dead_after_s:g} s "
                                    "(killed, or its host lost): stop the others and start the command again")
+
+    def _check_failed(self) -> None:
+        failed = self.dir / self.token / "failed"
+        if failed.is_dir():
+            for f in sorted(failed.iterdir()):
+                if not f.name.startswith("."):
+                    raise ProcessError(f"process {f.name} of {self.count} stopped: {_read(f) or 'no reason given'}")
 
     # ------------------------------------------------------------------------------------------- barriers
     def wait(self, name: str, timeout_s: float = BARRIER_TIMEOUT_S) -> None:

@@ -1,7 +1,7 @@
 """PPO as a method of the run loop: ``method = "ppo"``, a gradient-based baseline in the same world and
 with the same budget of episodes as NEAT.
 
-The learner is :mod:`kx.ppo` (flax actor-critic on NEAT's fixed layout, optax, the clipped objective with
+The learner is :mod:`.algorithm` (flax actor-critic on NEAT's fixed layout, optax, the clipped objective with
 GAE over SMDP steps of the keep-away environment, :mod:`kx.sim.gym`). The run loop sees a *population of
 one*: each generation ``ask`` trains the network on ``ppo.episodes_per_generation`` new episodes of the
 sampled policy (4500 by default: NEAT's 150 genomes x 30 trials, so that metrics rows of the two line up
@@ -20,7 +20,7 @@ A transferred run starts from the source's weights (``transfer.seeding = "popula
 source's training ended with; ``"champion"``: its validated champion), with a fresh optimiser and new
 episodes: the 13/3 layout is the same in every task.
 
-Config section ``ppo``: the :class:`kx.ppo.PPOConfig` fields (but ``updates``, which the budget in
+Config section ``ppo``: the :class:`.algorithm.PPOConfig` fields (but ``updates``, which the budget in
 episodes decides, and ``anneal_lr``), ``episodes_per_generation`` and ``anneal_episodes``.
 """
 
@@ -35,8 +35,8 @@ import jax.numpy as jnp
 import ml_collections
 import numpy as np
 
-from kx import ppo
 from kx.evolve.encoding import Encoding
+from kx.evolve.encodings.ppo import algorithm as ppo
 from kx.evolve.errors import ConfigError, is_int, is_number, need
 from kx.sim import entities, observe
 from kx.sim.policies import Policy
@@ -54,7 +54,7 @@ def greedy_policy(sim: KeepAwayConfig, hidden: int) -> Policy:
     parameters of G networks (leading axis G), ``params.index [*B]`` each lane's. With one network (a run's
     generation, its champion) every lane applies it; with several (a batched group's runs) each lane
     gathers its own. Either way a lane's logits are the same elementwise sums
-    (:func:`kx.ppo.actor_logits_batch_last`), so that a run's evaluation in a group is bit for bit its
+    (:func:`.algorithm.actor_logits_batch_last`), so that a run's evaluation in a group is bit for bit its
     evaluation alone."""
 
     def apply(params, state, key):
@@ -73,7 +73,7 @@ def greedy_policy(sim: KeepAwayConfig, hidden: int) -> Policy:
 
 @functools.lru_cache(maxsize=None)
 def entity_policy(sim: KeepAwayConfig, cfg: ppo.PPOConfig) -> Policy:
-    """The entity network's greedy decision (:class:`kx.ppo.EntityActorCritic`) as a shared-table policy of the
+    """The entity network's greedy decision (:class:`.algorithm.EntityActorCritic`) as a shared-table policy of the
     evaluator: ``params.table`` the flax parameters of G networks (leading axis G), ``params.index [*B]`` each
     lane's. Every lane applies its own row of the table to its own tokens, alone (the network vmapped over the
     lanes), so that a run's evaluation in a batched group is bit for bit its evaluation alone; the argmax of its
@@ -104,7 +104,7 @@ def _init_program(cfg: ppo.PPOConfig, sim: KeepAwayConfig, sim_params: KeepAwayP
 
 
 def _steps(c: ppo.PPOConfig) -> str:
-    """What a rollout's ``num_steps`` count (:data:`kx.ppo.ROLLOUTS`)."""
+    """What a rollout's ``num_steps`` count (:data:`.algorithm.ROLLOUTS`)."""
     return "world iterations" if c.rollout == "iteration" else "SMDP steps"
 
 
@@ -251,13 +251,13 @@ class PPOEncoding(Encoding):
 
 
 class EntityEncoding(PPOEncoding):
-    """``method = "ppo_entity"``: PPO on the size-invariant entity network (:class:`kx.ppo.EntityActorCritic`: the
+    """``method = "ppo_entity"``: PPO on the size-invariant entity network (:class:`.algorithm.EntityActorCritic`: the
     holder's view as tokens, self-attention over them, a hold logit and one pass logit per teammate), through the
     same run loop, budget and metrics as ``ppo``. Its weights fit every task, so a run transfers to any team size
     and its champion plays any task unchanged. Config section ``ppo_entity``: ``ppo``'s fields and the network's
     ``heads`` (attention heads, a divisor of ``hidden``), ``blocks`` (attention blocks) and ``mix``: other tasks,
     comma-separated (``"4v3"``, ``"4v3,5v3"``; empty: none), whose episodes share every batch with the run's own
-    task, ``num_envs`` and ``resets`` split evenly among them (:func:`kx.ppo.mixed_tokens`). The run's training
+    task, ``num_envs`` and ``resets`` split evenly among them (:func:`.algorithm.mixed_tokens`). The run's training
     budget counts the episodes of every task; its generations are played and validated in its own task."""
 
     name = "ppo_entity"

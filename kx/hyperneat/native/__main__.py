@@ -1,0 +1,5 @@
+import sys
+
+from kx.hyperneat.native import main
+
+sys.exit(main())

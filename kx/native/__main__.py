@@ -1,5 +1,0 @@
-import sys
-
-from kx.native import main
-
-sys.exit(main())
