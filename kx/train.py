@@ -148,39 +148,34 @@ def group_configs(cfg, seeds: list[int]) -> list:
     return out
 
 
-def main_group(args, overrides) -> int:
+def train_group(args, overrides) -> None:
     """``--seeds``: the runs of a batched group (:func:`kx.evolve.group.train_group`)."""
     from kx.evolve import config as cfg_lib
     from kx.evolve import group as group_lib
     from kx.evolve import trainer as trainer_lib
-    from kx.evolve.errors import ConfigError, RunError
+    from kx.evolve.errors import RunError
 
-    try:
-        seeds = parse_seeds(args.seeds)
-        if args.step is not None:
-            raise RunError("--step: not with --seeds (resume one run with its own --workdir)")
-        if args.resume and not args.workdir:
-            raise RunError("--resume: name the group with --workdir")
-        if args.resume and args.config is None:  # each run from its own config.json (its own source, ...)
-            cfgs = [group_configs(load_config(args, overrides, pathlib.Path(args.workdir) / f"seed{s}"), [s])[0]
-                    for s in seeds]
-        else:
-            cfgs = group_configs(load_config(args, overrides, pathlib.Path(args.workdir or ".") / f"seed{seeds[0]}"),
-                                 seeds)
-        for c in cfgs:
-            cfg_lib.validate(c)
-        trainer_lib.check_group(cfgs)
-        workdir = workdir_of(args, f"seeds{seeds[0]}-{seeds[-1]}")
-        dirs = [workdir / f"seed{s}" for s in seeds]
-        for d in dirs:
-            refuse_taken(d, args)
-        # every refusal above comes before any compute
-        group_lib.train_group(cfgs, dirs, resume=args.resume, overwrite=args.overwrite,
-                              log=lambda s: print(s, flush=True))
-    except (ConfigError, RunError) as e:
-        print(f"kx.train: error: {e}", file=sys.stderr)
-        return 2
-    return 0
+    seeds = parse_seeds(args.seeds)
+    if args.step is not None:
+        raise RunError("--step: not with --seeds (resume one run with its own --workdir)")
+    if args.resume and not args.workdir:
+        raise RunError("--resume: name the group with --workdir")
+    if args.resume and args.config is None:  # each run from its own config.json (its own source, ...)
+        cfgs = [group_configs(load_config(args, overrides, pathlib.Path(args.workdir) / f"seed{s}"), [s])[0]
+                for s in seeds]
+    else:
+        cfgs = group_configs(load_config(args, overrides, pathlib.Path(args.workdir or ".") / f"seed{seeds[0]}"),
+                             seeds)
+    for c in cfgs:
+        cfg_lib.validate(c)
+    trainer_lib.check_group(cfgs)
+    workdir = workdir_of(args, f"seeds{seeds[0]}-{seeds[-1]}")
+    dirs = [workdir / f"seed{s}" for s in seeds]
+    for d in dirs:
+        refuse_taken(d, args)
+    # every refusal above comes before any compute
+    group_lib.train_group(cfgs, dirs, resume=args.resume, overwrite=args.overwrite,
+                          log=lambda s: print(s, flush=True))
 
 
 def refuse_taken(run_dir: pathlib.Path, args) -> None:
@@ -200,28 +195,36 @@ def main(argv: list[str] | None = None) -> int:
     # first: a config's validation may touch JAX (CMA-ES and HyperNEAT build arrays), and JAX's devices
     # are fixed when it first does
     runtime.setup()
-    if args.seeds is not None:
-        return main_group(args, overrides)
-    from kx.evolve import config as cfg_lib
-    from kx.evolve import run as run_lib
     from kx.evolve.errors import ConfigError, RunError
 
     try:
-        if args.resume and not args.workdir:
-            raise RunError("--resume: name the run with --workdir")
-        if args.step is not None and not args.resume:
-            raise RunError("--step: only with --resume")
-        cfg = load_config(args, overrides, pathlib.Path(args.workdir or "."))
-        cfg_lib.validate(cfg)
-        workdir = workdir_of(args, f"s{cfg.seed}")
-        refuse_taken(workdir, args)
-        # every refusal above comes before any compute
-        run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
-                      log=lambda s: print(s, flush=True))
+        if args.seeds is not None:
+            train_group(args, overrides)
+        else:
+            train_one(args, overrides)
     except (ConfigError, RunError) as e:
         print(f"kx.train: error: {e}", file=sys.stderr)
         return 2
     return 0
+
+
+def train_one(args, overrides) -> None:
+    """One run (:func:`kx.evolve.run.train`)."""
+    from kx.evolve import config as cfg_lib
+    from kx.evolve import run as run_lib
+    from kx.evolve.errors import RunError
+
+    if args.resume and not args.workdir:
+        raise RunError("--resume: name the run with --workdir")
+    if args.step is not None and not args.resume:
+        raise RunError("--step: only with --resume")
+    cfg = load_config(args, overrides, pathlib.Path(args.workdir or "."))
+    cfg_lib.validate(cfg)
+    workdir = workdir_of(args, f"s{cfg.seed}")
+    refuse_taken(workdir, args)
+    # every refusal above comes before any compute
+    run_lib.train(cfg, workdir, resume=args.resume, overwrite=args.overwrite, step=args.step,
+                  log=lambda s: print(s, flush=True))
 
 
 if __name__ == "__main__":

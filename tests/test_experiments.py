@@ -20,7 +20,7 @@ import statsmodels.stats.multitest
 from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
-from kx.experiments import csvfile, design, measure, report, stats, sweep
+from kx.experiments import csvfile, design, measure, planning, report, stats, sweep
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
@@ -698,7 +698,6 @@ def test_the_committed_sweeps_read_as_finished_under_the_same_names(tmp_path, mo
 
 
 def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mean():
-    from kx.experiments import report
 
     def row(method, phase, target, wall):
         return {"method": method, "phase": phase, "target": target, "wall_seconds": str(wall)}
@@ -706,17 +705,16 @@ def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mea
     rows = [row("neat", "source", "3v2", 8), row("neat", "source", "3v2", 12), row("neat", "target", "4v3", 20),
             row("hyperneat", "source", "3v2", 30), row("hyperneat", "target", "4v3", 40),
             row("hyperneat", "target", "5v3", 60), row("cma_es", "source", "3v2", 5)]
-    seconds, borrowed, missing = report.full_protocol_seconds(rows, runs=1)
+    seconds, borrowed, missing = planning.full_protocol_seconds(rows, runs=1)
     # per run index: NEAT 2 sources (fitness, hybrid) and 3 targets x 4 setups, HyperNEAT the same,
     # CMA-ES 1 source and 3 x 2 targets; HyperNEAT's 6v4 costed at its targets' mean (50)
     assert seconds == 2 * 10 + 12 * 20 + 2 * 30 + 4 * 40 + 4 * 60 + 4 * 50 + 5
     assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target", "PPO source", "PPO target"}
     assert ("left out, with no runs here: CMA-ES target, PPO source, PPO target"
-            in report.full_protocol_estimate(rows, runs=1))
+            in planning.full_protocol_estimate(rows, runs=1))
 
 
 def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost():
-    from kx.experiments import report
 
     def row(method, setup, phase, target, run, wall):
         return {"method": method, "setup": setup, "phase": phase, "target": target, "run": str(run),
@@ -728,7 +726,7 @@ def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost
     rows += [row("neat", s, "target", t, i, 20 if t == "4v3" else 40) for s in t3.METHOD_SETUPS["neat"]
              for t in t3.TARGETS for i in range(2) if (s, t, i) != ("fitness", "6v4", 1)]
     rows += [row("hyperneat", "fitness", "source", "3v2", 0, 30), row("hyperneat", "none", "target", "4v3", 0, 50)]
-    cells = report.still_to_run(rows, runs=2)
+    cells = planning.still_to_run(rows, runs=2)
     by = {(c["method"], c["phase"], c["target"], c["setup"]): c for c in cells}
     neat = [c for c in cells if c["method"] == "neat"]
     assert [(c["target"], c["setup"], c["runs"], c["missing"], c["seconds"]) for c in neat] == [
@@ -751,7 +749,7 @@ def test_the_finished_protocol_is_short_only_of_ppo_whose_runs_are_not_costed():
     committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "protocol_full"
     rows = t3.read_results(committed / "results.csv")
     assert len(rows) == len(t3.plan(("neat", "hyperneat", "cma_es"), runs=design.RUNS_PER_CELL)) == 700
-    cells = report.still_to_run(rows)
+    cells = planning.still_to_run(rows)
     assert {c["method"] for c in cells} == {"ppo"} and [c["missing"] for c in cells] == [20] * 7
     text = "\n".join(report._still_to_run(rows))
     assert "In all 140 runs, none of them costed (no run of their method's phase here)." in text
@@ -771,7 +769,7 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
     rows += [row("neat", "hybrid", "source", "3v2", 2)]
     rows += [row("neat", "novelty", "target", t, 2) for t in ("6v4", "4v3")]
     rows += [row("hyperneat", "none", "target", "5v3", i) for i in range(3)]
-    cells = report.extended_cells(rows, runs=2)
+    cells = planning.extended_cells(rows, runs=2)
     assert [(c["method"], c["phase"], c["target"], c["setup"], c["runs"]) for c in cells] == [
         ("neat", "source", "3v2", "hybrid", 3), ("neat", "target", "4v3", "novelty", 3),
         ("neat", "target", "6v4", "novelty", 3), ("hyperneat", "target", "5v3", "none", 3)]
@@ -780,7 +778,7 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
                                   "hyperneat/novelty > neat/novelty"]
     assert cells[3]["claims"] == ["hyperneat/fitness > hyperneat/none", "hyperneat/novelty > hyperneat/none",
                                   "hyperneat/none > neat/none"]
-    assert report.extended_cells(rows, runs=3) == []
+    assert planning.extended_cells(rows, runs=3) == []
     assert report._extended([r for r in rows if r["method"] == "neat" and int(r["run"]) < 20], design.design()) == []
 
 

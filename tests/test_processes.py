@@ -1,4 +1,4 @@
-"""Several processes, one experiment (kx.processes): a tiny protocol run by two local processes gives the
+"""Several processes, one experiment (kx.experiments.processes): a tiny protocol run by two local processes gives the
 one-process run's results, checkpoints and metrics; a process killed mid-run loses nothing; the process
 files merge once, atomically; the processes meet through files in the experiment's folder (a handshake that
 stale files cannot fool, barriers, a failed or silent process noticed), and processes that do not come are a
@@ -117,7 +117,7 @@ def _meet(folder, count, make=None, **kw):
     meetings and the exception each raised (None)."""
     import threading
 
-    from kx import processes
+    from kx.experiments import processes
 
     meetings = [processes.Meeting(folder, count, i, poll_s=0.01, **kw) for i in range(count)]
     errors = [None] * count
@@ -166,7 +166,7 @@ def test_files_of_a_killed_attempt_do_not_pass_for_the_new_one(tmp_path):
     """An attempt's meeting files stay when it is killed: its session, join and acknowledgement files, and
     barriers every process reached. A new attempt makes a session of its own, waits at its own barriers and
     removes the old barrier folders."""
-    from kx import processes
+    from kx.experiments import processes
 
     first, errors = _meet(tmp_path, 2, lambda m: m.wait("start"))
     assert errors == [None, None]
@@ -186,7 +186,7 @@ def test_files_of_a_killed_attempt_do_not_pass_for_the_new_one(tmp_path):
 
 
 def test_a_failed_or_silent_process_stops_the_others_at_their_barrier(tmp_path):
-    from kx import processes
+    from kx.experiments import processes
 
     def fail_one(m):
         if m.index == 1:
@@ -226,7 +226,7 @@ def test_a_failed_or_silent_process_stops_the_others_at_their_barrier(tmp_path):
 
 
 def test_the_process_count_and_id_come_from_a_launchers_environment(monkeypatch, tmp_path):
-    from kx import processes
+    from kx.experiments import processes
 
     for var in ("SLURM_PROCID", "SLURM_NTASKS", "OMPI_COMM_WORLD_RANK", "OMPI_COMM_WORLD_SIZE", "PMI_RANK", "PMI_SIZE",
                 processes.ENV_ID, processes.ENV_COUNT):
@@ -261,20 +261,19 @@ def test_process_files_merge_once_in_the_plans_order(tmp_path):
     seen = csvfile.read_all(path, t3.FIELDS, "x", t3.row_key)
     assert [(r["phase"], r["run"]) for r in seen] == [("target", "0"), ("target", "2"), ("source", "2"),
                                                       ("target", "3"), ("target", "1")]
-    merged = t3.merge_results(tmp_path)
+    merged = t3.ledger(tmp_path).merge()
     assert [(r["phase"], r["run"]) for r in merged] == [("target", "0"), ("target", "1"), ("source", "2"),
                                                         ("target", "2"), ("target", "3")]
     assert not list(tmp_path.glob("results.process*.csv"))
     assert t3.read_results(path) == merged
-    assert t3.merge_results(tmp_path) == merged  # nothing left to merge: unchanged
+    assert t3.ledger(tmp_path).merge() == merged  # nothing left to merge: unchanged
 
 
 def test_local_processes_charge_each_run_its_share_of_the_machine(monkeypatch, tmp_path):
     """Under the local launcher, N processes share the machine's cores: each learns N from its environment
     and charges its runs 1/N more of its group's time (a run's wall_seconds is its share of the machine);
     alone, or on a cluster (no such variable), 1."""
-    from kx import processes
-    from kx.experiments import measure
+    from kx.experiments import measure, processes
 
     monkeypatch.delenv(processes.ENV_LOCAL, raising=False)
     assert processes.machine_sharers() == 1

@@ -34,10 +34,9 @@ from typing import Callable
 
 import numpy as np
 
-from kx import processes
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, design, report, stats
+from kx.experiments import csvfile, design, processes, report, stats
 from kx.experiments import table3 as t3
 
 
@@ -186,7 +185,7 @@ def run(out: str | pathlib.Path, arms=tuple(ARMS), methods=METHODS, phases=("sou
 
 # ---------------------------------------------------------------------------------------------------- report
 
-METHOD_NAMES = report.METHOD_NAMES
+METHOD_NAMES = t3.METHOD_NAMES
 ALPHA = design.ALPHA  # Table 3's significance level
 MEASURES = (("test_fitness", "validated champion on the test states"), ("max_fitness", "maximum training fitness"))
 

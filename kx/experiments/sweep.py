@@ -20,11 +20,10 @@ from typing import Callable
 
 import numpy as np
 
-from kx import processes
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, measure, stats
+from kx.experiments import csvfile, measure, processes, runner, stats
 
 FIELDS = ("combination", "overrides", "seed", "task", "method", "generations", "episodes", "max_fitness",
           "test_fitness", "test_trials", "test_seed", "champion_generation", "wall_seconds")
@@ -122,7 +121,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
     """Runs every (combination, seed) not yet in ``out/results.csv``, the seeds of each combination in
     batched groups of up to ``batch`` (:mod:`kx.evolve.group`; 1: one by one; each run's results are the
     same either way, its ``wall_seconds`` its share of its group's); returns all rows. Under several
-    processes (``shard``, :mod:`kx.processes`) each trains the runs it owns (the i-th (combination, seed)
+    processes (``shard``, :mod:`kx.experiments.processes`) each trains the runs it owns (the i-th (combination, seed)
     of the grid when i modulo the processes is its index) into its own process file, which the leader
     merges into results.csv."""
     if not isinstance(batch, int) or batch < 1:
@@ -132,10 +131,10 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
     for c in combos:  # every config checked before any compute
         cfg_lib.validate(_config(sweep, c, sweep.seeds[0]))
     spec_path = out / "sweep.json"
+    ledger = runner.Ledger(out / "results.csv", FIELDS, "kx sweep results file", _row_key, _row_key, "sweep", shard)
     if shard.leader:
         out.mkdir(parents=True, exist_ok=True)
-        csvfile.merge(out / "results.csv", FIELDS, "kx sweep results file", _row_key, _row_key)
-    shard.barrier("sweep start")
+    ledger.start()
     if spec_path.is_file():
         have = json.loads(spec_path.read_text())
         if have != sweep.to_json():
@@ -144,9 +143,7 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
     elif shard.leader:
         run_outputs.write_json(spec_path, sweep.to_json())
     shard.barrier("sweep sweep.json")
-    rows = read_results(out / "results.csv")
-    own_path = out / "results.csv" if shard.count == 1 else csvfile.process_path(out / "results.csv", shard.index)
-    own = rows if shard.count == 1 else []
+    rows = ledger.open()
     done = {(r["overrides"], int(r["seed"])) for r in rows}
     name = names(combos)
     total = len(combos) * len(sweep.seeds)
@@ -171,20 +168,11 @@ def run(out: str | pathlib.Path, sweep: Sweep, log: Callable[[str], None] = prin
                    "test_trials": sweep.test_trials, "test_seed": sweep.test_seed,
                    "champion_generation": int(finished.state.champion_generation),
                    "wall_seconds": finished.wall_seconds}
-            if own is not rows:
-                own.append(row)
-            rows.append(row)
-            csvfile.write(own_path, FIELDS, own)
+            ledger.append(row)
             n_done += 1
             log(f"[{n_done}/{total} runs | {' '.join(c)} seed {seed}] test {finished.test:.4f}, max fitness "
                 f"{finished.max_fitness:.4f}")
-    if shard.count > 1:
-        shard.barrier("sweep end")
-        if shard.leader:
-            csvfile.merge(out / "results.csv", FIELDS, "kx sweep results file", _row_key, _row_key)
-        shard.barrier("sweep merged")
-        rows = read_results(out / "results.csv")
-    return rows
+    return ledger.finish()
 
 
 def write_report(out: str | pathlib.Path) -> pathlib.Path:

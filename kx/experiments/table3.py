@@ -42,13 +42,13 @@ from typing import Callable, Iterable
 
 import ml_collections
 
-from kx import processes
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, design, measure
+from kx.experiments import csvfile, design, measure, processes, runner
 
 METHODS = ("neat", "hyperneat", "cma_es", "ppo")
+METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES", "ppo": "PPO"}  # as reports print them
 SOURCES = ("shared", "per_target")
 SOURCE_TASK = "3v2"
 TARGETS = ("4v3", "5v3", "6v4")
@@ -476,9 +476,11 @@ def _order(row: dict) -> tuple:
             TARGETS.index(row["target"]) if row["target"] in TARGETS else -1)
 
 
-def merge_results(out: pathlib.Path) -> list[dict]:
-    """results.csv with the process files of a run of several processes merged into it (kx.processes)."""
-    return csvfile.merge(out / "results.csv", FIELDS, "kx table3 results file", row_key, _order)
+def ledger(out: pathlib.Path, shard: processes.Shard = processes.ALONE) -> runner.Ledger:
+    """The protocol folder's results.csv under ``shard`` (:class:`kx.experiments.runner.Ledger`): its process
+    files merged in the plan's order."""
+    return runner.Ledger(pathlib.Path(out) / "results.csv", FIELDS, "kx table3 results file", row_key, _order,
+                         "table3", shard)
 
 
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
@@ -498,7 +500,8 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     (:data:`PLANNED`), and a recorded source's finished run directory is the run of its row (its
     metrics.csv curves: a re-run killed before its check is not taken as checked).
 
-    Under several processes (``shard``: :mod:`kx.processes`) each trains the runs it owns (a run index modulo
+    Under several processes (``shard``: :mod:`kx.experiments.processes`) each trains the runs it owns (a run index
+    modulo
     the processes: a target and its source together) and writes their rows to its own process file; the
     leader merges the files of a killed run at the start and everyone's at the end, and alone writes
     protocol.json. The results are those of one process, bit for bit.
@@ -511,10 +514,9 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     for spec in specs:  # every config checked before any compute
         config(protocol, spec, out)
     results_path = out / "results.csv"
-    if shard.leader and results_path.parent.is_dir():
-        merge_results(out)  # the process files a run of several processes left when it was killed
-    shard.barrier("table3 start")
-    rows = read_results(results_path)
+    results = ledger(out, shard)
+    results.start()
+    rows = results.open()
     recorded = {row_key(r): r for r in rows}
     same_protocol(out, protocol)
     rebuild = missing_sources(out, protocol, specs, recorded)
@@ -541,8 +543,6 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     shard.barrier("table3 protocol.json")
     if not shard.leader:
         design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), lambda s: None, design_record)
-    own_path = results_path if shard.count == 1 else csvfile.process_path(results_path, shard.index)
-    own = rows if shard.count == 1 else []
     rebuild = [s for s in rebuild if shard.owns(s.run)]
     needed: list[RunSpec] = []
     for spec in specs:
@@ -583,11 +583,8 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                     log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced "
                         "(every column but the times)")
                 continue
-            if own is not rows:
-                own.append(row)
-            rows.append(row)
+            results.append(row)
             progress.add(row)
-            csvfile.write(own_path, FIELDS, own)
             log(f"[{progress.done + 1}/{total} runs] {spec.describe()}: max fitness {row['max_fitness']:.4f}, test "
                 f"{row['test_fitness']:.4f}")
             progress.done += 1
@@ -597,11 +594,6 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                            "run (the code or the machine gives other results than those recorded: run the "
                            "folder's targets where it was made, or the whole protocol again in a new folder)")
         progress.finish(0)
-    if shard.count > 1:
-        shard.barrier("table3 end")  # every process's runs finished: the leader merges their files
-        if shard.leader:
-            merge_results(out)
-        shard.barrier("table3 merged")
-        rows = read_results(results_path)
+    rows = results.finish()
     want = {s.key for s in specs}
     return [r for r in rows if row_key(r) in want]
