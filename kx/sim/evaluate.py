@@ -179,11 +179,6 @@ SHRINK = 0.8
 
 COUNTERS = ("t", "reason", "passes", "dispersion_sum", "ball_centre_sum", "decisions")
 
-#: every rung of an evaluation in one compiled call (:func:`_rungs`). False: one call per rung, dispatched back
-#: to back, as until 2026-12-04, when a call ended with its slowest device (the same episodes;
-#: scripts/rungs_in_one_call.py times the two, the tests check they agree)
-RUNGS_IN_ONE_CALL = True
-
 # no iteration cap inside a rung: every episode ends by max_iterations, so the loop ends by itself
 _NO_CAP = np.int32(2**31 - 1)
 
@@ -366,18 +361,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     call = functools.partial(_rungs, policy=policy, config=config, n_dev=n_dev, layout=layout, n_groups=n_groups,
                              impl=str(jax.random.key_impl(keys)), table_rows=table_rows)
     per_device = [w // n_dev for w in chain]
-    if RUNGS_IN_ONE_CALL:
-        packed, progress = (np.asarray(a) for a in call(rows, lane_params, scalars, table, targets=targets))
-    else:  # a call per rung, dispatched back to back (read once all are), the records laid out as one call's
-        records, ran = [], []
-        for target in targets:
-            *compacted, record, progress = call(rows, lane_params, scalars, table, targets=(target,))
-            rows, lane_params = compacted if compacted else (None, None)
-            records.append(record)
-            ran.append(progress)
-        records = [np.split(np.asarray(r), n_dev, axis=1) for r in records]
-        packed = np.concatenate([r[d] for d in range(n_dev) for r in records], axis=1)
-        progress = np.concatenate([np.asarray(r) for r in ran], axis=1)
+    packed, progress = (np.asarray(a) for a in call(rows, lane_params, scalars, table, targets=targets))
     results = {f: np.zeros(n, np.int32) for f in COUNTERS}
     for block in np.split(packed, n_dev, axis=1):  # each device's rungs, one after another
         for rec in np.split(block, np.cumsum(per_device)[:-1], axis=1):  # later rungs overwrite lanes still live
