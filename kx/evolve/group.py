@@ -2,9 +2,10 @@
 each in its own run directory.
 
 The generation step is :meth:`kx.evolve.trainer.RunGroup.step` (the one step there is; a run alone is a
-group of one). :func:`train_group` writes each run's own complete run directory, as
-:func:`kx.evolve.run.train` writes it for that seed alone, resumable one by one or as a group
-(``python -m kx.train --seeds 0-15``), and prints one progress line per generation for the group.
+group of one), driven by :func:`kx.evolve.run.advance` (the one host loop). :func:`train_group` writes each
+run's own complete run directory, as :func:`kx.evolve.run.train` writes it for that seed alone, resumable one
+by one or as a group (``python -m kx.train --seeds 0-15``), and prints one progress line per generation for
+the group.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import pathlib
 import time
 from typing import Callable, Sequence
 
-import jax
 import ml_collections
 import numpy as np
 
@@ -22,7 +22,7 @@ from kx.evolve import outputs
 from kx.evolve import run as run_lib
 from kx.evolve.checkpoint import RunLock
 from kx.evolve.errors import RunError
-from kx.evolve.trainer import GenerationResult, RunGroup, check_group, run_state, stack_states
+from kx.evolve.trainer import RunGroup, check_group
 
 
 def progress_line(rows: list[dict], total: int, eta: float | None, seconds: float) -> str:
@@ -72,27 +72,11 @@ def train_group(cfgs: Sequence[ml_collections.ConfigDict], run_dirs: Sequence[st
                 for t, d, res in zip(group.trainers, run_dirs, resumes)]
         for run in runs:
             run.quiet = True
-        total = cfgs[0].generations
-        stacked, members, done_here, clock = None, None, 0, outputs.GenerationClock()
-        while True:
-            todo = [i for i, run in enumerate(runs) if not run.done and run.generation < total]
-            if not todo:
-                break
-            g = min(runs[i].generation for i in todo)
-            batch = [i for i in todo if runs[i].generation == g]
-            if batch != members:  # the first generation, or after a resume that found the runs apart
-                sub = group if len(batch) == len(group) else RunGroup([group.trainers[i] for i in batch])
-                stacked, members = stack_states([runs[i].state for i in batch]), batch
-            t_start = time.perf_counter()
-            stacked, rows = sub.step(stacked)
-            if done_here == 0 and len(batch) > 1 and sub.calls_note:
-                log(f"batched group: {sub.calls_note}")
-            host = jax.device_get(stacked)  # one transfer; each run's state is a view of it
-            for j, i in enumerate(batch):
-                runs[i].record(GenerationResult(row=rows[j], state=run_state(host, j)))
-            done_here += 1
-            t_now = time.perf_counter()
-            per_gen = clock.tick(t_now)
-            log(progress_line(rows, total, None if per_gen is None else per_gen * (total - g - 1), t_now - t_start))
-            run_lib.maps_notice(log)
+        total, clock = cfgs[0].generations, outputs.GenerationClock()
+
+        def each(rows: list[dict], g: int, seconds: float) -> None:
+            per_gen = clock.tick(time.perf_counter())
+            log(progress_line(rows, total, None if per_gen is None else per_gen * (total - g - 1), seconds))
+
+        run_lib.advance(runs, group, total, notice=log, log=log, each=each)
         return [run.rows[-1] if run.done else run.close() for run in runs]

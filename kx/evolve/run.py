@@ -10,7 +10,9 @@ meets the same ones) and then::
     learner = encoding.tell(key_tell, population, score, fitness, learner)
 
 The generation step is :meth:`kx.evolve.trainer.Trainer.step`, the step of a group of one run
-(:class:`kx.evolve.trainer.RunGroup`: the one generation step, for a run alone and for batched runs). The
+(:class:`kx.evolve.trainer.RunGroup`: the one generation step, for a run alone and for batched runs), and
+:func:`advance` is the one host loop over it: for a run in its directory (:func:`train`), for a batched group
+of runs (:func:`kx.evolve.group.train_group`) and for a run in memory (:func:`evolve_in_memory`). The
 loop knows only the encoding interface (NEAT, CMA-ES and any registered encoding run through the
 same code) and the objective interface (what the learner selects on). Raw task fitness drives
 everything reported: the validated champion, the best checkpoint, metrics.csv, the progress line and
@@ -64,7 +66,7 @@ from kx.evolve import outputs, streams, transfer
 from kx.evolve.checkpoint import RunLock, RunState
 from kx.evolve.encoding import stack
 from kx.evolve.errors import RunError
-from kx.evolve.trainer import GenerationResult, Trainer
+from kx.evolve.trainer import GenerationResult, RunGroup, Trainer, run_state, stack_states
 from kx.sim import env
 from kx.sim import evaluate as ev
 
@@ -108,15 +110,68 @@ def record_runtime(run_dir: pathlib.Path, start: int, impl: dict) -> None:
 def evolve_in_memory(trainer: Trainer, log: Callable[[dict], None] | None = None) -> tuple[RunState, list[dict]]:
     """All of ``trainer``'s generations with no run directory: the final run state (its validated
     champion included) and the metrics row of every generation, as :func:`train` would write them."""
-    state, rows = trainer.init(), []
-    for _ in range(trainer.cfg.generations):
-        res = trainer.step(state)
-        state = res.state
-        rows.append(res.row)
-        if log is not None:
-            log(res.row)
-        maps_notice(lambda m: print(m, file=sys.stderr, flush=True))
-    return state, rows
+    run = InMemoryRun(trainer, trainer.init(), log)
+    advance([run], trainer.alone(), trainer.cfg.generations,
+            notice=lambda m: print(m, file=sys.stderr, flush=True))
+    return run.state, run.rows
+
+
+class _Run:
+    """What :func:`advance` reads of a run: the generation its state has reached."""
+
+    @property
+    def generation(self) -> int:
+        return int(self.state.generation)
+
+
+@dataclasses.dataclass
+class InMemoryRun(_Run):
+    """A run with no directory: its state and its metrics rows, each row passed to ``log``."""
+
+    trainer: Trainer
+    state: RunState
+    log: Callable[[dict], None] | None = None
+    rows: list = dataclasses.field(default_factory=list)
+    done: bool = False
+
+    def record(self, result: GenerationResult) -> dict:
+        self.state = result.state
+        self.rows.append(result.row)
+        if self.log is not None:
+            self.log(result.row)
+        return result.row
+
+
+def advance(runs: list, group: RunGroup, total: int, *, notice: Callable[[str], None],
+            log: Callable[[str], None] = print,
+            each: Callable[[list[dict], int, float], None] | None = None) -> None:
+    """The one host loop over the generation step (:meth:`kx.evolve.trainer.RunGroup.step`): ``runs`` (an
+    :class:`OpenRun` or :class:`InMemoryRun` each, ``group``'s runs in its order; a run alone is a group of one)
+    to ``total`` generations in lockstep. Runs cut at different generations (a kill between two runs'
+    checkpoints) are brought level first: the runs behind advance alone, as a smaller group. After each
+    generation every run records its result, ``each(rows, generation, seconds)`` is told, and ``notice`` hears
+    of the process's memory maps near their limit."""
+    stacked, members, first = None, None, True
+    while True:
+        todo = [i for i, run in enumerate(runs) if not run.done and run.generation < total]
+        if not todo:
+            return
+        g = min(runs[i].generation for i in todo)
+        batch = [i for i in todo if runs[i].generation == g]
+        if batch != members:  # the first generation, or after a resume that found the runs apart
+            sub = group if len(batch) == len(group) else RunGroup([group.trainers[i] for i in batch])
+            stacked, members = stack_states([runs[i].state for i in batch]), batch
+        t_start = time.perf_counter()
+        stacked, rows = sub.step(stacked)
+        if first and len(batch) > 1 and sub.calls_note:
+            log(f"batched group: {sub.calls_note}")
+        first = False
+        host = jax.device_get(stacked)  # one transfer; each run's state is a view of it
+        for j, i in enumerate(batch):
+            runs[i].record(GenerationResult(row=rows[j], state=run_state(host, j)))
+        if each is not None:
+            each(rows, g, time.perf_counter() - t_start)
+        maps_notice(notice)
 
 
 def render_champion(trainer: Trainer, genotype, path: pathlib.Path, frames: int) -> pathlib.Path:
@@ -190,9 +245,7 @@ def _train(cfg: ml_collections.ConfigDict, run_dir: pathlib.Path, *, resume: boo
     run = open_run(Trainer(cfg), run_dir, resume=resume, overwrite=overwrite, step=step, log=log)  # validates first
     if run.done:
         return run.rows[-1] if run.rows else None
-    for _ in range(run.start, cfg.generations):
-        run.record(run.trainer.step(run.state))
-        maps_notice(log)
+    advance([run], run.trainer.alone(), cfg.generations, notice=log, log=log)
     return run.close()
 
 
@@ -205,7 +258,7 @@ def maps_notice(log: Callable[[str], None]) -> None:
 
 
 @dataclasses.dataclass
-class OpenRun:
+class OpenRun(_Run):
     """A run directory being written (:func:`open_run`): the run state, and what the files need."""
 
     trainer: Trainer
@@ -221,10 +274,6 @@ class OpenRun:
     done_here: int = 0
     clock: outputs.GenerationClock = dataclasses.field(default_factory=outputs.GenerationClock)
     last_plot: float = -float("inf")
-
-    @property
-    def generation(self) -> int:
-        return int(self.state.generation)
 
     def record(self, result: GenerationResult) -> dict:
         """Writes one generation: its metrics row, its progress line, its checkpoint when due, progress.png."""

@@ -1,5 +1,8 @@
 """The objects of a run and its generation step, the one there is: R runs of one config, R >= 1.
 
+Over 450 lines because the generation step (ask, evaluate, score, validate, tell) is one compiled piece for a run
+alone and for a group; split, one program would read from two files.
+
 A :class:`Trainer` holds one run's objects (its validated config, encoding and objective, validation
 states and transfer source); no files. A :class:`RunGroup` holds R trainers whose configs are equal but for
 :data:`VARYING` (the seed, and a transferred run's source). Their run states are one pytree with a leading
@@ -141,10 +144,14 @@ class Trainer:
     def step(self, state: RunState) -> GenerationResult:
         """Evaluate generation ``state.generation``'s population, validate its champion, breed the next
         one: the generation step of a group of one run (:meth:`RunGroup.step`), the only one there is."""
+        stacked, rows = self.alone().step(stack_states([state]))
+        return GenerationResult(row=rows[0], state=run_state(stacked, 0))
+
+    def alone(self) -> RunGroup:
+        """The group of this run alone (built on first use, its programs kept for the run's life)."""
         if self._alone is None:
             self._alone = RunGroup([self])
-        stacked, rows = self._alone.step(stack_states([state]))
-        return GenerationResult(row=rows[0], state=run_state(stacked, 0))
+        return self._alone
 
 def generation_row(g: int, f: np.ndarray, s: np.ndarray, beh: np.ndarray, champ: int, validation: float,
                    state: RunState, enc_metrics: dict, obj_metrics: dict) -> dict:
@@ -195,7 +202,7 @@ VARYING = ("seed", "transfer.source")
 #: call 128 s, 4 a call 117 s, one a call 84 s for the same 26M live steps; at generation 10 of 3v2
 #: (short episodes) one call and eight took the same 4.5 s. The budget is this machine's L3 cache.
 #: Measured again with the BEV decision that reads each lane's weights inside its chains (2026-12-03,
-#: scripts/hyperneat_runs_per_call.py: a population replicated over R runs, each with its own start
+#: scripts/hyperneat_runs_per_call.py at 4030abb: a population replicated over R runs, each with its own start
 #: states; the same episodes either way, the NEAT protocol paused): a population 5 generations
 #: into 4v3, one call against one per run, R = 4 1.23x faster, R = 8 1.10x, R = 16 0.88x; a population 50
 #: generations into 4v3 (longer episodes), R = 4 0.91x (samples 0.75-1.08). Kept: no setting wins at both.
