@@ -1,12 +1,9 @@
 """CMA-ES (evosax) on a linear network of the fixed 13-input, 3-output layout, from scratch in the 5v3
-target task: population 50, 150 generations of 30 trials (the budget of the 50-generation NEAT run of
-``configs/neat_5v3.py``, 150 x 50 individuals)."""
+target task: population 50, 150 generations of 30 trials, the budget of NEAT's 50 generations in
+``configs/neat_5v3.py`` (kx.evolve.config.target_config)."""
 
-from kx.evolve.config import base_config
+from kx.evolve.config import target_config
 
 
 def get_config():
-    c = base_config("cma_es")
-    c.task = "5v3"
-    c.generations = 150
-    return c
+    return target_config("cma_es", "5v3")

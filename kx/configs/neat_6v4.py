@@ -1,11 +1,8 @@
-"""NEAT evolved from scratch in the 6v4 target task for 50 generations (the paper's no-transfer setup),
-on the fixed 13-input, 3-output layout, population 150, 30 trials per generation."""
+"""NEAT evolved from scratch in the 6v4 target task (the paper's no-transfer setup), on the fixed 13-input,
+3-output layout: 50 generations of 150 x 30 episodes, the protocol's budget (kx.evolve.config.target_config)."""
 
-from kx.evolve.config import base_config
+from kx.evolve.config import target_config
 
 
 def get_config():
-    c = base_config()
-    c.task = "6v4"
-    c.generations = 50
-    return c
+    return target_config("neat", "6v4")

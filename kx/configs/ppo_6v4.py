@@ -1,12 +1,9 @@
 """PPO in the 6v4 target task, from scratch (or, with ``transfer.source``, from a 3v2 run's weights): 50
-generations of 4500 training episodes, the budget of the 50-generation NEAT run of ``configs/neat_6v4.py``."""
+generations of 4500 training episodes, the budget of NEAT's 50 generations in ``configs/neat_6v4.py``
+(kx.evolve.config.target_config)."""
 
-from kx.evolve.config import base_config
+from kx.evolve.config import target_config
 
 
 def get_config():
-    c = base_config("ppo")
-    c.task = "6v4"
-    c.generations = 50
-    c.ppo.anneal_episodes = 50 * 4500  # the learning rate falls to 0 over the run's budget
-    return c
+    return target_config("ppo", "6v4")
