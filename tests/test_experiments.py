@@ -553,7 +553,7 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
             [spec("none", "target", "6v4", 0)], [spec("fitness", "target", "5v3", 2)],
             [spec("novelty", "target", "5v3", 2)], [t3.RunSpec("hyperneat", "none", "target", "4v3", 0)]]
     lines = []
-    progress = t3._Progress(lines.append, todo, 3, 9, rows)
+    progress = planning.Progress(lines.append, todo, 3, 9, rows)
     progress.start(todo[0][0], "group")
     clock[0] += 30.0
     # the current group (2 x 120 s, its cell's mean) has run 30 s: 210 s left; the source 20; 6v4, with no run
@@ -569,13 +569,13 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     progress.start(todo[1][0], "next")
     assert progress.eta() == (20.0 + 130.0 + 300.0 + 150.0, 6, 1, 1)
     # one cell's runs: the estimate rests on those alone
-    assert t3._Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows).eta()[1:] == (1, 0, 0)
-    assert t3._Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
+    assert planning.Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows).eta()[1:] == (1, 0, 0)
+    assert planning.Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
                         rows).eta_text().startswith("  protocol ETA unknown")
     # two local processes share the machine: a run's recorded wall time is half its time on the clock, and
     # the current group (2 x 2 x 120 s) has run 30 s of it
     monkeypatch.setenv(t3.processes.ENV_LOCAL, "2")
-    shared = t3._Progress(lines.append, todo[:2], 3, 9, rows[:3])
+    shared = planning.Progress(lines.append, todo[:2], 3, 9, rows[:3])
     shared.start(todo[0][0], "group")
     clock[0] += 30.0
     assert shared.eta() == (2 * 240.0 - 30.0 + 2 * 20.0, 3, 0, 0)

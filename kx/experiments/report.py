@@ -1,5 +1,8 @@
 """Table 3's report, from ``DIR/results.csv`` alone: ``DIR/report.md`` and its PNGs.
 
+Over 450 lines because it builds one document, report.md, section by section; its statistics live in
+kx.experiments.stats, its design in kx.experiments.design and its costs in kx.experiments.planning.
+
 Nothing in it depends on where the folder lies or when it is written (no paths, no dates; the bootstrap
 has a fixed seed; matplotlib's PNGs carry no time), so regenerating it gives the same bytes.
 """
@@ -196,6 +199,11 @@ def _targets(runs: dict, claim) -> list[str]:
     return [t for t in t3.TARGETS if (*claim.a, t) in runs and (*claim.b, t) in runs]
 
 
+def _with_runs(runs: dict, claims) -> list[tuple]:
+    """The ``claims`` with runs of both their cells in some target, each with those targets."""
+    return [(claim, targets) for claim in claims if (targets := _targets(runs, claim))]
+
+
 def _matrix(runs: dict, cell: tuple, targets: list[str], dsg: dict, upto: int | None = None) -> np.ndarray:
     """A cell as clusters x targets (:func:`stats.cluster_matrix`): the runs of a transfer cell share their source
     across the targets where the design's sources are shared; ``upto``: only runs of index below it."""
@@ -236,10 +244,7 @@ def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> lis
     out = []
     for claims in (design.PRIMARY, design.SECONDARY):
         fam = []
-        for claim in claims:
-            targets = _targets(runs, claim)
-            if not targets:
-                continue
+        for claim, targets in _with_runs(runs, claims):
             if dsg["looks"] == "planned":
                 sets, fracs = [(_matrix(runs, claim.a, targets, dsg), _matrix(runs, claim.b, targets, dsg))], (1.0,)
             else:
@@ -277,12 +282,10 @@ def first_kind_verdicts(runs: dict) -> dict:
     out = {}
     for claims in (design.PRIMARY, design.SECONDARY):
         fam = []
-        for claim in claims:
-            targets = _targets(runs, claim)
-            if targets:
-                vals = [[np.asarray([v for _, v in sorted(runs[(*c, t)].items())]) for t in targets]
-                        for c in (claim.a, claim.b)]
-                fam.append((claim, stats.van_elteren(*vals)))
+        for claim, targets in _with_runs(runs, claims):
+            vals = [[np.asarray([v for _, v in sorted(runs[(*c, t)].items())]) for t in targets]
+                    for c in (claim.a, claim.b)]
+            fam.append((claim, stats.van_elteren(*vals)))
         padded = [t.p for _, t in fam] + [1.0] * (len(claims) - len(fam))
         for (claim, t), h in zip(fam, stats.holm(padded)):
             out[claim.key] = ("not decided" if h >= design.ALPHA else "supported" if t.z > 0 else "contradicted",
