@@ -1,5 +1,8 @@
 """The novelty hybrid's readings measured over seeds: ``python -m kx.experiments novelty --out docs/novelty``.
 
+Over 450 lines because it holds one study whole, its runs and its report: apart, the arms' definitions would sit
+away from the comparisons that read them.
+
 Each *arm* is one reading of the hybrid, or fitness alone (the reference), run as a Table 3 protocol of its
 own in ``OUT/<arm>/`` (:mod:`kx.experiments.table3`: the same seeding rule, test states and measures, so
 an arm's run ``i`` plays the training states of Table 3's run ``i`` of its cell): its 3v2 sources of 20

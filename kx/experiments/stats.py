@@ -1,5 +1,8 @@
 """The statistics of Table 3 (SPEC section 6): the paper's tests and the field's current reporting.
 
+Over 450 lines because it is the one home of every test and interval the reports use: they share the bootstrap, the
+clusters and the ranks.
+
 * Normality per cell: the Lilliefors-corrected Kolmogorov-Smirnov test (statsmodels).
 * Pairwise comparisons: the two-sided Mann-Whitney U test (scipy), its effect size as the Vargha-Delaney
   A (the probability that a run of the first setup beats a run of the second, ties counted half), and

@@ -1,5 +1,8 @@
 """The Bird's Eye View policy of HyperNEAT (Verbancsics & Stanley 2010; Didi & Nitschke 2016, section 3.2).
 
+Over 450 lines because the policy, its two ways of computing the sums (the compiled XLA code and the native kernel's
+binding) and the rule for which one runs belong together: the two must give the same bits.
+
 A substrate is a ``W x W`` input layer fully connected to a ``W x W`` output layer (SPEC §3). A
 generation's substrates arrive as one shared table (:class:`kx.sim.policies.Shared`)::
 
@@ -362,7 +365,8 @@ def _entry_outputs(w_flat, b_flat, index, rows, state, config, image, busy=None)
     steps an unrolled chain of multiply-adds reading each lane's weights as :func:`sparse_outputs` does).
     Until 2026-12-03 every weight of the list was gathered into a ``[R, E, *B]`` array first; the chains
     give the same sums bit for bit (``tests/test_bev.py``) at 0.45-0.57 times the cost of a decision
-    (``scripts/bev_every_entry.py``: the trained 4v3 fixture's substrates on 4500 5v3 and 6v4 states, one core)."""
+    (``scripts/bev_every_entry.py`` at c848d7e: the trained 4v3 fixture's substrates on 4500 5v3 and 6v4 states,
+    one core)."""
     n = config.field_size**2
     n_a, n_s = config.n_keepers + config.n_takers, config.field_size - 2
     cells, values = fenced(functools.partial(sparse_image, config=config, image=image), state)  # [E, *B]

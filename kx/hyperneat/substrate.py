@@ -138,7 +138,7 @@ def cppn_outputs(net: network.Network, n_hidden: jax.Array, x: jax.Array, config
     ``0 * 0`` terms, so fewer rows give the same values as reals (at most a zero's sign differs, as in
     :func:`kx.neat.network.trim`), for less work: 150 trained 4v3 CPPNs of 3-4 hidden nodes at 4 rows
     (and split over 2 CPU devices) build in 152 ms against 209 ms with all 16 on one device
-    (``scripts/hyperneat_table_placement.py``).
+    (``scripts/hyperneat_table_placement.py`` at 4a07c62).
 
     The same holds within a query: hidden node ``i``'s sum over the hidden rows reads only the first
     ``k >= i`` of them, ``k`` the narrowest of :func:`_dot_widths` (rows ``i`` and later are still 0).
@@ -199,7 +199,7 @@ def build(population: Genome, config: NEATConfig, substrate: Substrate, devices:
 
     ``reference``: the query as it was until 2026-12-05 (every hidden row in each sum, every output on
     every link: :func:`cppn_outputs` with ``narrow=False`` and no ``last_at``), the same bits for more work;
-    tests/test_substrate.py and ``scripts/substrate_build.py`` check and time the two."""
+    tests/test_substrate.py and ``scripts/substrate_build.py`` at 4a07c62 check and time the two."""
     substrate.check_cppn(config)
     if devices == 1:
         return _build(population, config, substrate, rows, reference)

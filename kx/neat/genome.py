@@ -1,5 +1,8 @@
 """Genome operators of NEAT (Stanley & Miikkulainen 2002) on fixed-capacity tensors.
 
+Over 450 lines because every operator on one genome's tensors shares the layout's invariants (kx.neat.types); split,
+each part would restate them.
+
 Every operator here is a pure function of *one* genome (see :mod:`kx.neat.types` for the layout),
 vmapped over the population by the caller. Structural mutation is split in two so that the same
 structural innovation arising in several genomes of one generation gets one innovation number:

@@ -1,5 +1,8 @@
 """The keep-away world of SPEC §1 as pure functions: ``reset`` and ``step``.
 
+Over 450 lines because the world's rules are one set of pure functions (reset, the takers, the kick, possession, the
+step), which the plain reference implementation (kx.sim.reference) mirrors function for function.
+
 Grid keep-away after Didi & Nitschke (2016), Table 2: a ``W x W`` field of integer cells, agents make
 one king move per iteration, a passed ball travels two unit sub-steps per iteration, 4500 iterations
 per trial. One iteration runs, in order: the holder's decision, the kick, the keepers' moves, the

@@ -15,7 +15,7 @@ own, and a call ended when its slowest device did: where one device's lanes held
 (good genomes: the lanes are policy-major, so a device holds one half of the population) it ran the
 whole tail in one rung while the other waited, then the other ran its tail in the next rung while the
 first waited. On populations 50 generations into the protocol's 4v3 cells, one call evaluated HyperNEAT's
-1.04-2.63 times and NEAT's 1.45-2.06 times as fast (the same episodes; scripts/rungs_in_one_call.py); a NEAT
+1.04-2.63 times and NEAT's 1.45-2.06 times as fast (the same episodes; scripts/rungs_in_one_call.py at 4a07c62); a NEAT
 group of 16 runs (8 on each device) is balanced already and gained about 1.1 times.
 The lanes of several independent evaluations (the runs of a batched group) can share one batch: see
 ``key`` in :func:`evaluate`. How the lanes are packed into the rungs' arrays and placed on the devices
@@ -346,7 +346,7 @@ def evaluate(policy: Policy, policy_params: Any, starts: State, params: KeepAway
     # they divide evenly (HyperNEAT's substrates, built so: kx.hyperneat.substrate.build), as it is: each
     # device's lanes play exactly its rows (the lanes are policy-major and stay on their device), and a copy
     # of the whole table onto each device (96 MB, about 48 ms on 2 CPU devices:
-    # scripts/hyperneat_table_placement.py) is saved
+    # scripts/hyperneat_table_placement.py at 4a07c62) is saved
     table_rows = policy.shared and lanes.rows_split(policy_params, n_dev)
     table, scalars = lanes.put_replicated(
         (policy_params if policy.shared and not table_rows else None, lanes.pack_scalars(params, group_size, keys)),

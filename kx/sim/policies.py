@@ -87,7 +87,7 @@ def random_policy(config: KeepAwayConfig) -> Policy:
 #: Margins are sums of a few cells, so float32 rounds them by about 1e-6; 1e-4 is far above that and far
 #: below any real difference of cells. On this CPU it changed the outcome of 0.6-2% of 54,000 episodes of
 #: every task, where equal margins had been told apart by their last bit (each task's mean fitness within
-#: 0.0004 of before; 2026-12-04, scripts/heuristic_tolerance.py).
+#: 0.0004 of before; 2026-12-04, scripts/heuristic_tolerance.py at 412c231).
 MARGIN_TOL = 1e-4
 
 

@@ -1,5 +1,5 @@
 """Batches of states that exercise the policies' corner cases: for tests and for checks of bit-identity
-across a change of code (``scripts/bev_identity.py``), which must feed both sides the same states."""
+across a change of code (``scripts/bev_identity.py`` at b84bd55), which must feed both sides the same states."""
 
 from __future__ import annotations
 

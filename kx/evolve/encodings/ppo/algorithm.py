@@ -1,6 +1,9 @@
 """PPO on the keep-away environment (:mod:`kx.sim.gym`), purejaxrl-style: the whole training one jitted
 function of a key, vmapped over seeds at the call site.
 
+Over 450 lines because it keeps purejaxrl's layout: the networks, the rollout, GAE, the loss and the update in one
+file, so that the one jitted program reads top to bottom.
+
 The network (``PPOConfig.network``) is either ``"mlp"``, on NEAT's fixed layout: the 13 inputs in, an actor of 3
 logits (hold, pass to the nearest teammate, to the second nearest) and a critic; or ``"entity"``, the size-invariant
 :class:`EntityActorCritic` on the holder's view as tokens (:mod:`kx.sim.entities`: self-attention over the holder,
@@ -67,7 +70,7 @@ class PPOConfig:
     # device steps and learns from num_envs / devices episodes, the gradients of a minibatch summed over them
     reward_scale: float = 100.0  # the critic learns the return times this: a step's reward is a share of the
     # 4500 iterations, and at 1.0 the greedy policy of 50 updates only held (return 0.002); at 100: 0.30 after
-    # 100 updates, 0.40 after 400, always-hold 0.002 (scripts/ppo_learns.py, 3v2, seed 0, 200 test starts)
+    # 100 updates, 0.40 after 400, always-hold 0.002 (scripts/ppo_learns.py at 629aac9, 3v2, seed 0, 200 test starts)
 
     def __post_init__(self):
         if (self.num_envs * self.num_steps) % self.num_minibatches:
