@@ -27,7 +27,7 @@ def _run_dir(folder, row, live_steps):
 def test_versus_divides_seconds_per_generation_cell_by_cell_and_pooled_over_setups(capsys):
     rows = [_row("hyperneat", "none", 10, 20, 25), _row("neat", "none", 10, 10, 10),
             _row("hyperneat", "fitness", 30, 30, 30), _row("neat", "fitness", 30, 15, 20),
-            _row("neat", "novelty", 30, 15, 20),  # no HyperNEAT run of this cell: left out, pooled too
+            _row("neat", "hybrid", 30, 15, 20),  # no HyperNEAT run of this cell: left out, pooled too
             _row("hyperneat", "fitness", 20, 5, 5, phase="source", target="3v2"),  # sources are not targets
             _row("neat", "fitness", 20, 50, 50, phase="source", target="3v2")]
     cell_costs._versus(cell_costs._cells(rows), "hyperneat", "neat")

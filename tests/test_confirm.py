@@ -19,7 +19,7 @@ SMALL = ("population_size=12", "trials=2", "validation_trials=4", "sim.max_itera
 
 
 def test_with_sources_per_target_every_target_run_has_a_source_of_its_own():
-    specs = [t3.RunSpec(m, s, "target", t, i) for m in ("neat", "hyperneat") for s in ("fitness", "novelty")
+    specs = [t3.RunSpec(m, s, "target", t, i) for m in ("neat", "hyperneat") for s in ("fitness", "hybrid")
              for t in t3.TARGETS for i in range(30)]
     shared = {t3.source_of(s) for s in specs}
     own = [t3.source_of(s, "per_target") for s in specs]
@@ -109,7 +109,7 @@ def _rows(runs: dict, rng) -> list[dict]:
         m, s = key.split("/")
         for t in t3.TARGETS:
             for i in range(n):
-                shift = {"none": 0.0, "fitness": 0.1, "novelty": -0.05}[s] + (0.05 if m == "hyperneat" else 0.0)
+                shift = {"none": 0.0, "fitness": 0.1, "hybrid": -0.05}[s] + (0.05 if m == "hyperneat" else 0.0)
                 v = 0.5 + shift + rng.normal(0, 0.05)
                 row = {f: "" for f in t3.FIELDS} | {
                     "method": m, "setup": s, "phase": "target", "target": t, "run": str(i), "seed": "1",

@@ -203,16 +203,16 @@ def test_the_pooled_verdicts_follow_the_test_over_the_whole_family():
     rng = np.random.default_rng(8)
     up = lambda n, shift: rng.normal(0.5 + shift, 0.05, n)  # noqa: E731
     cells = {("neat", "fitness", "4v3"): up(20, 0.2), ("neat", "none", "4v3"): up(20, 0.0),
-             ("hyperneat", "novelty", "4v3"): up(20, -0.2), ("hyperneat", "fitness", "4v3"): up(20, 0.0),
-             ("neat", "novelty", "4v3"): up(20, 0.01)}
+             ("hyperneat", "hybrid", "4v3"): up(20, -0.2), ("hyperneat", "fitness", "4v3"): up(20, 0.0),
+             ("neat", "hybrid", "4v3"): up(20, 0.01)}
     for dsg in (design.design(), ONE_LOOK):
         res = {r["claim"].key: r for r in report.pooled_tests(_as_runs(cells), dsg, power=dsg is ONE_LOOK)}
-        assert set(res) == {"neat/fitness > neat/none", "hyperneat/novelty > hyperneat/fitness",
-                            "neat/novelty > neat/none", "neat/novelty > neat/fitness",
-                            "hyperneat/fitness > neat/fitness", "hyperneat/novelty > neat/novelty"}
+        assert set(res) == {"neat/fitness > neat/none", "hyperneat/hybrid > hyperneat/fitness",
+                            "neat/hybrid > neat/none", "neat/hybrid > neat/fitness",
+                            "hyperneat/fitness > neat/fitness", "hyperneat/hybrid > neat/hybrid"}
         assert res["neat/fitness > neat/none"]["verdict"] == "supported"
-        assert res["hyperneat/novelty > hyperneat/fitness"]["verdict"] == "contradicted"
-        assert res["hyperneat/novelty > hyperneat/fitness"]["way"] == -1
+        assert res["hyperneat/hybrid > hyperneat/fitness"]["verdict"] == "contradicted"
+        assert res["hyperneat/hybrid > hyperneat/fitness"]["way"] == -1
         p = [res[k]["seq_p"] for k in res]
         want = stats.holm(p + [1.0] * (len(report.design.PRIMARY) - len(p)))[:len(p)]
         np.testing.assert_allclose([res[k]["holm"] for k in res], want)
@@ -286,7 +286,7 @@ def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their
     assert not set(seeds) & {t3.run_seed(1, *s.key) for s in specs}  # another protocol seed: other runs
     for s in specs:
         src = t3.source_of(s)
-        if s.phase == "target" and s.setup in ("fitness", "novelty"):
+        if s.phase == "target" and s.setup in ("fitness", "hybrid"):
             want = (s.method, s.run, "source", t3.SETUPS[s.setup].objective)
             assert (src.method, src.run, src.phase, src.setup) == want
             assert src in specs[: specs.index(s)]  # a source runs before its targets
@@ -296,6 +296,31 @@ def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their
                        ("--setups", dict(setups=("transfer",))), ("--runs", dict(runs=0))):
         with pytest.raises(ValueError, match=field):
             t3.plan(**bad)
+
+
+def test_a_folder_written_under_the_hybrids_old_setup_names_reads_as_one_written_now(tmp_path):
+    """docs/table3 was written when the hybrid's setups were ``novelty`` and ``none_novelty``: its rows, its
+    design and its run directories read under today's names, and its runs keep the seeds they were trained with."""
+    committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "table3"
+    with (committed / "results.csv").open() as f:
+        raw = [r["setup"] for r in csv.DictReader(f)]
+    rows = t3.read_results(committed / "results.csv")
+    assert raw.count("novelty") > 0 and raw.count("none_novelty") > 0
+    assert [r["setup"] for r in rows] == [t3.OLD_SETUPS.get(s, s) for s in raw]
+    for r in rows:  # every recorded seed is the one today's seeding gives the row's run, under its new name
+        assert int(r["seed"]) == t3.run_seed(int(r["protocol_seed"]), *t3.row_key(r)), t3.row_key(r)
+    assert t3.run_seed(0, "neat", "hybrid", "target", "4v3", 0) == t3.run_seed(0, "neat", "novelty", "target", "4v3", 0)
+    assert t3.run_seed(0, "neat", "hybrid", "source", "3v2", 0) != t3.run_seed(0, "neat", "novelty", "source", "3v2", 0)
+    assert t3.plan(setups=("novelty", "none_novelty"), runs=1) == t3.plan(setups=("hybrid", "none_hybrid"), runs=1)
+    spec = t3.RunSpec("neat", "hybrid", "target", "4v3", 0)
+    assert t3.run_dir(tmp_path, spec).parent.parent.name == "target-hybrid"
+    (tmp_path / "runs" / "neat" / "target-novelty" / "4v3" / "run00").mkdir(parents=True)
+    assert t3.run_dir(tmp_path, spec).parent.parent.name == "target-novelty"  # a run under way there resumes
+    recorded = json.loads((committed.parent / "table3_confirmatory" / "protocol.json").read_text())["design"]
+    assert "neat/novelty" in recorded["runs"] and "hyperneat/novelty > neat/novelty" in json.dumps(recorded)
+    dsg = design.of_folder(committed.parent / "table3_confirmatory")
+    assert dsg["runs"]["neat/hybrid"] == recorded["runs"]["neat/novelty"] and "novelty" not in json.dumps(dsg["runs"])
+    assert design.renamed(recorded["primary"]) == [c.key for c in design.PRIMARY]
 
 
 def test_cma_es_budget_in_evaluations_equals_neats(tmp_path):
@@ -551,7 +576,7 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     spec = lambda s, p, t, i: t3.RunSpec("neat", s, p, t, i)  # noqa: E731
     todo = [[spec("none", "target", "5v3", 2), spec("none", "target", "5v3", 3)], [spec("fitness", "source", "3v2", 2)],
             [spec("none", "target", "6v4", 0)], [spec("fitness", "target", "5v3", 2)],
-            [spec("novelty", "target", "5v3", 2)], [t3.RunSpec("hyperneat", "none", "target", "4v3", 0)]]
+            [spec("hybrid", "target", "5v3", 2)], [t3.RunSpec("hyperneat", "none", "target", "4v3", 0)]]
     lines = []
     progress = planning.Progress(lines.append, todo, 3, 9, rows)
     progress.start(todo[0][0], "group")
@@ -735,7 +760,7 @@ def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost
     assert by["hyperneat", "source", "3v2", "hybrid"] == {
         "method": "hyperneat", "phase": "source", "target": "3v2", "setup": "hybrid", "runs": 0, "missing": 2,
         "seconds": 60.0, "borrowed": False}
-    h4, h6 = by["hyperneat", "target", "4v3", "none"], by["hyperneat", "target", "6v4", "novelty"]
+    h4, h6 = by["hyperneat", "target", "4v3", "none"], by["hyperneat", "target", "6v4", "hybrid"]
     assert (h4["runs"], h4["missing"], h4["seconds"]) == (1, 1, 50.0)
     assert (h6["seconds"], h6["borrowed"]) == (100.0, True)  # 6v4 has no HyperNEAT run: its 4v3 mean, twice
     assert by["cma_es", "target", "5v3", "none"]["seconds"] is None
@@ -762,21 +787,21 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
     def row(method, setup, phase, target, run):
         return {"method": method, "setup": setup, "phase": phase, "target": target, "run": str(run)}
 
-    # every NEAT cell at 2 runs; its fitness + NS transfer cells in 4v3 and 6v4 at 3, with their hybrid
+    # every NEAT cell at 2 runs; its hybrid transfer cells in 4v3 and 6v4 at 3, with their hybrid
     # sources; HyperNEAT's no-transfer 5v3 cell at 3
     rows = [row("neat", o, "source", "3v2", i) for o in ("fitness", "hybrid") for i in range(2)]
     rows += [row("neat", s, "target", t, i) for s in t3.METHOD_SETUPS["neat"] for t in t3.TARGETS for i in range(2)]
     rows += [row("neat", "hybrid", "source", "3v2", 2)]
-    rows += [row("neat", "novelty", "target", t, 2) for t in ("6v4", "4v3")]
+    rows += [row("neat", "hybrid", "target", t, 2) for t in ("6v4", "4v3")]
     rows += [row("hyperneat", "none", "target", "5v3", i) for i in range(3)]
     cells = planning.extended_cells(rows, runs=2)
     assert [(c["method"], c["phase"], c["target"], c["setup"], c["runs"]) for c in cells] == [
-        ("neat", "source", "3v2", "hybrid", 3), ("neat", "target", "4v3", "novelty", 3),
-        ("neat", "target", "6v4", "novelty", 3), ("hyperneat", "target", "5v3", "none", 3)]
+        ("neat", "source", "3v2", "hybrid", 3), ("neat", "target", "4v3", "hybrid", 3),
+        ("neat", "target", "6v4", "hybrid", 3), ("hyperneat", "target", "5v3", "none", 3)]
     assert cells[0]["claims"] == []
-    assert cells[1]["claims"] == ["neat/novelty > neat/none", "neat/novelty > neat/fitness",
-                                  "hyperneat/novelty > neat/novelty"]
-    assert cells[3]["claims"] == ["hyperneat/fitness > hyperneat/none", "hyperneat/novelty > hyperneat/none",
+    assert cells[1]["claims"] == ["neat/hybrid > neat/none", "neat/hybrid > neat/fitness",
+                                  "hyperneat/hybrid > neat/hybrid"]
+    assert cells[3]["claims"] == ["hyperneat/fitness > hyperneat/none", "hyperneat/hybrid > hyperneat/none",
                                   "hyperneat/none > neat/none"]
     assert planning.extended_cells(rows, runs=3) == []
     assert report._extended([r for r in rows if r["method"] == "neat" and int(r["run"]) < 20], design.design()) == []
@@ -863,9 +888,9 @@ def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():
     cells = {}
     for t in t3.TARGETS:
         cells[("neat", "none", t)] = np.concatenate([1.0 + noise(20), 0.0 + noise(15)])
-        cells[("neat", "none_novelty", t)] = np.concatenate([0.5 + noise(20), 2.0 + noise(15)])
+        cells[("neat", "none_hybrid", t)] = np.concatenate([0.5 + noise(20), 2.0 + noise(15)])
     r = next(r for r in report.pooled_tests(_as_runs(cells), design.design(), power=False)
-             if r["claim"].key == "neat/none_novelty > neat/none")
+             if r["claim"].key == "neat/none_hybrid > neat/none")
     assert len(r["tests"]) == 2 and r["tests"][0].z < -5 and r["tests"][1].z > 0
     assert r["way"] == -1 and r["verdict"] == "contradicted"
 

@@ -75,7 +75,7 @@ def _folder(tmp_path):
                   [_row("neat", "fitness", "source", "3v2", i, 0.60 + i / 100, 0.80 + i / 100) for i in range(6)])
     csvfile.write(out / "rho-0.0" / "results.csv", t3.FIELDS,
                   [_row("neat", "hybrid", "source", "3v2", i, 0.10 + i / 100, 0.50 + i / 100) for i in range(6)]
-                  + [_row("neat", "novelty", "target", "4v3", i, 0.20 + i / 100, 0.40 + i / 100) for i in range(3)])
+                  + [_row("neat", "hybrid", "target", "4v3", i, 0.20 + i / 100, 0.40 + i / 100) for i in range(3)])
     csvfile.write(table3 / "results.csv", t3.FIELDS,
                   [_row("neat", "fitness", "target", "4v3", i, 0.21 + i / 100, 0.41 + i / 100) for i in range(8)])
     for arm, setup in (("fitness", "fitness"), ("rho-0.0", "hybrid")):
@@ -142,7 +142,7 @@ def test_the_diagnostics_come_from_the_runs_metrics_and_survive_without_them(tmp
 def test_a_tiny_sweep_reproduces_table3s_sources_and_reports(tmp_path):
     base = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     out, table3 = tmp_path / "novelty", tmp_path / "table3"
-    t3.run(table3, base, t3.plan(("neat",), ("4v3",), ("fitness", "novelty"), 2), log=lambda s: None)
+    t3.run(table3, base, t3.plan(("neat",), ("4v3",), ("fitness", "hybrid"), 2), log=lambda s: None)
     novelty.run(out, ("fitness", "rho-0.0", "rho-0.4", "authors-archive"), ("neat",), runs=2,
                 target_runs={"neat": 2}, table3=table3, base=base, log=lambda s: None)
     for arm, runs in (("fitness", 2), ("rho-0.0", 4), ("rho-0.4", 2), ("authors-archive", 2)):

@@ -10,7 +10,7 @@ from kx.bench.common import LEARNING_TEST_SEED, sd
 
 #: the target arms, per objective: the Table 3 setups seeded with the source's population, and fresh
 ARMS = {"fitness": {"transfer": "fitness", "fresh": "none"},
-        "hybrid": {"transfer": "novelty", "fresh": "none_novelty"}}
+        "hybrid": {"transfer": "hybrid", "fresh": "none_hybrid"}}
 
 
 def run(args) -> None:
@@ -21,8 +21,8 @@ def run(args) -> None:
     150 genomes, 20 generations of 30 trials, ``--objective``; the same source the protocol trains)
     trains in a temporary run directory; then in each target task (4v3, 5v3, 6v4) the protocol's two
     target runs of that index play their first generation: one seeded with the source's whole final
-    population (setup ``fitness``, or ``novelty`` with ``--objective hybrid``), one fresh (``none``,
-    ``none_novelty``). Each run has the protocol's seed of its own (:func:`kx.experiments.table3.run_seed`),
+    population (setup ``fitness``, or ``hybrid`` with ``--objective hybrid``), one fresh (``none``,
+    ``none_hybrid``). Each run has the protocol's seed of its own (:func:`kx.experiments.table3.run_seed`),
     so the two arms train on different start states. Each first-generation champion (the fittest on the
     generation's 30 training trials, the run's validated champion after one generation) plays the same
     ``--test-trials`` held-out test states of the target task (the test stream of seed 2026), and so does

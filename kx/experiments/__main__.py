@@ -62,7 +62,8 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--runs", type=int, default=20, help="runs per cell (default 20)")
     t.add_argument("--methods", type=_list, default=("neat", "hyperneat", "cma_es", "ppo"))
     t.add_argument("--targets", type=_list, default=("4v3", "5v3", "6v4"))
-    t.add_argument("--setups", type=_list, default=("none", "fitness", "novelty", "none_novelty"))
+    t.add_argument("--setups", type=_list, default=("none", "fitness", "hybrid", "none_hybrid"),
+                   help="of none, fitness, hybrid, none_hybrid (the old novelty, none_novelty read as the last two)")
     t.add_argument("--seed", type=int, default=0, help="the protocol seed (every run's seed and the test states)")
     t.add_argument("--test-trials", type=int, default=1000)
     t.add_argument("--source-generations", type=int, default=20)

@@ -17,9 +17,10 @@ def cell_text(v) -> str:
     return format(v, ".9g") if isinstance(v, float) else str(v)  # float32 values round-trip in 9 digits
 
 
-def read(path: str | pathlib.Path, fields: tuple[str, ...], what: str) -> list[dict]:
+def read(path: str | pathlib.Path, fields: tuple[str, ...], what: str, aliases: dict | None = None) -> list[dict]:
     """The rows (strings) of ``path`` in file order, [] when there is no file; ``RunError`` when its
-    columns are not ``fields`` (not a ``what``)."""
+    columns are not ``fields`` (not a ``what``). ``aliases``: ``{column: {old value: value}}``, the names a file
+    written before a rename holds, read as today's."""
     path = pathlib.Path(path)
     if not path.is_file():
         return []
@@ -27,7 +28,11 @@ def read(path: str | pathlib.Path, fields: tuple[str, ...], what: str) -> list[d
         reader = csv.DictReader(f)
         if tuple(reader.fieldnames or ()) != tuple(fields):
             raise RunError(f"{path}: not a {what} (columns {reader.fieldnames}, expected {list(fields)})")
-        return list(reader)
+        rows = list(reader)
+    for column, names in (aliases or {}).items():
+        for r in rows:
+            r[column] = names.get(r[column], r[column])
+    return rows
 
 
 def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -> None:
@@ -58,13 +63,14 @@ def process_files(path: str | pathlib.Path) -> list[pathlib.Path]:
                   key=lambda p: int(p.stem.rpartition("process")[2] or 0))
 
 
-def read_all(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: Callable[[dict], tuple]) -> list[dict]:
+def read_all(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: Callable[[dict], tuple],
+             aliases: dict | None = None) -> list[dict]:
     """The rows of ``path`` and of the process files beside it not yet merged (each run once, the main file's
     first): what every process of an experiment takes as finished."""
-    rows = read(path, fields, what)
+    rows = read(path, fields, what, aliases)
     seen = {key(r) for r in rows}
     for p in process_files(path):
-        for r in read(p, fields, what):
+        for r in read(p, fields, what, aliases):
             if key(r) not in seen:
                 seen.add(key(r))
                 rows.append(r)
@@ -72,17 +78,17 @@ def read_all(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: 
 
 
 def merge(path: str | pathlib.Path, fields: tuple[str, ...], what: str, key: Callable[[dict], tuple],
-          order: Callable[[dict], tuple]) -> list[dict]:
+          order: Callable[[dict], tuple], aliases: dict | None = None) -> list[dict]:
     """Merges the process files beside ``path`` into it: its rows, then the others' new rows in ``order``,
     written atomically, and only then the process files removed (a kill in between merges them again,
     each run once). Returns the merged rows."""
     path = pathlib.Path(path)
     files = process_files(path)
-    rows = read(path, fields, what)
+    rows = read(path, fields, what, aliases)
     if not files:
         return rows
     seen = {key(r) for r in rows}
-    new = [r for p in files for r in read(p, fields, what)]
+    new = [r for p in files for r in read(p, fields, what, aliases)]
     added = []
     for r in sorted(new, key=order):
         if key(r) not in seen:

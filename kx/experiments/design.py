@@ -5,10 +5,10 @@ test states: both written into ``DIR/protocol.json`` and checked whenever a fold
 on one measure (:data:`MEASURES`), pooled over the targets the folder holds runs of:
 
 * *primary*, the paper's own comparisons: transfer against none for each method and transfer setup;
-  fitness + NS transfer against fitness transfer for each method; HyperNEAT against NEAT for each of
-  the paper's three setups (9 comparisons). Holm's correction over these 9, per measure;
-* *secondary*, exploratory: the fourth setup (no transfer with fitness + NS) against no transfer (novelty
-  without transfer); fitness + NS transfer against the fourth setup (both run the hybrid, so they differ
+  hybrid transfer (the paper's Fitness + NS) against fitness transfer for each method; HyperNEAT against NEAT
+  for each of the paper's three setups (9 comparisons). Holm's correction over these 9, per measure;
+* *secondary*, exploratory: the fourth setup (no transfer, with the hybrid) against no transfer (the hybrid
+  without transfer); hybrid transfer against the fourth setup (both run the hybrid, so they differ
   in the transfer alone: the comparison the paper's design confounds); HyperNEAT against NEAT in the
   fourth setup; and CMA-ES's transfer against none. Holm's correction over these, per measure.
 
@@ -35,6 +35,7 @@ import dataclasses
 import hashlib
 import json
 import pathlib
+import re
 from typing import Callable
 
 import numpy as np
@@ -59,7 +60,7 @@ class Claim:
     """``a`` better than ``b``: cells ``(method, setup)``, pooled over the targets."""
 
     family: str  # "primary" or "secondary"
-    claim: str  # "transfer", "novelty", "hyperneat" (the paper's); or what the secondary one asks
+    claim: str  # "transfer", "hybrid", "hyperneat" (the paper's); or what the secondary one asks
     a: tuple[str, str]
     b: tuple[str, str]
 
@@ -68,24 +69,23 @@ class Claim:
         return f"{self.a[0]}/{self.a[1]} > {self.b[0]}/{self.b[1]}"
 
 
-PAPER_SETUPS = ("none", "fitness", "novelty")
+PAPER_SETUPS = ("none", "fitness", "hybrid")
 PRIMARY = (
-    *(Claim("primary", "transfer", (m, s), (m, "none")) for m in ("neat", "hyperneat") for s in ("fitness", "novelty")),
-    *(Claim("primary", "novelty", (m, "novelty"), (m, "fitness")) for m in ("neat", "hyperneat")),
+    *(Claim("primary", "transfer", (m, s), (m, "none")) for m in ("neat", "hyperneat") for s in ("fitness", "hybrid")),
+    *(Claim("primary", "hybrid", (m, "hybrid"), (m, "fitness")) for m in ("neat", "hyperneat")),
     *(Claim("primary", "hyperneat", ("hyperneat", s), ("neat", s)) for s in PAPER_SETUPS),
 )
 SECONDARY = (
-    *(Claim("secondary", "novelty, no transfer", (m, "none_novelty"), (m, "none")) for m in ("neat", "hyperneat")),
-    *(Claim("secondary", "transfer, both with novelty", (m, "novelty"), (m, "none_novelty"))
-      for m in ("neat", "hyperneat")),
-    Claim("secondary", "hyperneat", ("hyperneat", "none_novelty"), ("neat", "none_novelty")),
+    *(Claim("secondary", "hybrid, no transfer", (m, "none_hybrid"), (m, "none")) for m in ("neat", "hyperneat")),
+    *(Claim("secondary", "transfer, both hybrid", (m, "hybrid"), (m, "none_hybrid")) for m in ("neat", "hyperneat")),
+    Claim("secondary", "hyperneat", ("hyperneat", "none_hybrid"), ("neat", "none_hybrid")),
     Claim("secondary", "transfer", ("cma_es", "fitness"), ("cma_es", "none")),
     Claim("secondary", "transfer", ("ppo", "fitness"), ("ppo", "none")),
 )
 CLAIMS = PRIMARY + SECONDARY
 #: the paper's claims, as the report words them
 TITLES = {"transfer": "Policy transfer beats evolving from scratch",
-          "novelty": "Fitness + NS transfer beats fitness transfer",
+          "hybrid": "Hybrid transfer (the paper's Fitness + NS) beats fitness transfer",
           "hyperneat": "HyperNEAT beats NEAT"}
 
 
@@ -192,6 +192,18 @@ def effective(recorded: dict) -> dict:
     return out
 
 
+def renamed(recorded):
+    """A recorded design (or any part of it) with the hybrid's setups under today's names: a folder written when
+    they were ``novelty`` and ``none_novelty`` (:data:`kx.experiments.table3.OLD_SETUPS`) reads as one written now."""
+    if isinstance(recorded, dict):
+        return {renamed(k): renamed(v) for k, v in recorded.items()}
+    if isinstance(recorded, list):
+        return [renamed(v) for v in recorded]
+    if isinstance(recorded, str):
+        return re.sub(r"(?<=/)(none_)?novelty\b", lambda m: (m.group(1) or "") + "hybrid", recorded)
+    return recorded
+
+
 def of_folder(out: pathlib.Path) -> dict:
     """The effective design (:func:`effective`) of the folder ``out`` (its protocol.json's; today's exploratory
     design where it records none), with ``corrected_after_runs`` where the correction was applied after runs were
@@ -200,7 +212,7 @@ def of_folder(out: pathlib.Path) -> dict:
     have = json.loads(path.read_text()) if path.is_file() else {}
     if "design" not in have:
         return design(sources=have.get("sources", "shared"))
-    out = dict(effective(have["design"]))
+    out = dict(effective(renamed(have["design"])))
     if "test" not in have["design"] or have.get("design_history"):
         out["corrected_after_runs"] = True  # read by the report, never recorded
     return out
@@ -257,6 +269,8 @@ def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] 
     compute."""
     path = pathlib.Path(out) / "protocol.json"
     have = json.loads(path.read_text())
+    if "design" in have:
+        have["design"] = renamed(have["design"])
     tasks = tuple(tasks)
     states = {"stream": "kx.evolve.streams.test(seed)", "seed": protocol.seed, "trials": protocol.test_trials,
               "sha256": test_state_digests(protocol, tasks)}
@@ -311,7 +325,8 @@ def _secondary_gained(have: dict, want: dict, out: pathlib.Path) -> list[str] | 
     cells = set()
     if results.is_file():
         with results.open(newline="") as f:
-            cells = {(r["method"], r["setup"]) for r in csv.DictReader(f) if r["phase"] == "target"}
+            cells = {tuple(renamed(f"{r['method']}/{r['setup']}").split("/")) for r in csv.DictReader(f)
+                     if r["phase"] == "target"}
     by_key = {c.key: c for c in SECONDARY}
     for key in gained:
         claim = by_key.get(key)

@@ -67,7 +67,7 @@ ARMS = {a.name: a for a in (
 METHODS = ("neat", "hyperneat")
 REFERENCE = "fitness"
 #: the Table 3 setup of a "table3" arm's 4v3 transfers
-TABLE3_SETUP = {"fitness": "fitness", "rho-0.4": "novelty"}
+TABLE3_SETUP = {"fitness": "fitness", "rho-0.4": "hybrid"}
 TARGET = "4v3"
 #: diagnostics.csv's columns: one row per generation of every run (empty where a column does not apply)
 KEY = ("method", "setup", "phase", "target", "run")
@@ -91,13 +91,13 @@ def specs(arm: Arm, method: str, phase: str, runs: int, target_runs: int) -> lis
         return [t3.RunSpec(method, arm.objective, "source", t3.SOURCE_TASK, i) for i in range(runs)]
     if arm.transfer != "here":
         return []
-    return [t3.RunSpec(method, "novelty", "target", TARGET, i) for i in range(target_runs)]
+    return [t3.RunSpec(method, "hybrid", "target", TARGET, i) for i in range(target_runs)]
 
 
 # ------------------------------------------------------------------------------------------- diagnostics
 
 def read_diagnostics(path: pathlib.Path) -> list[dict]:
-    return csvfile.read(path, DIAGNOSTICS, "kx novelty diagnostics file")
+    return csvfile.read(path, DIAGNOSTICS, "kx novelty diagnostics file", t3.ALIASES)
 
 
 def diagnostics_of(spec: t3.RunSpec, metrics: list[dict]) -> list[dict]:

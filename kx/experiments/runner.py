@@ -31,15 +31,16 @@ class Ledger:
     order: Callable[[dict], tuple]
     name: str
     shard: processes.Shard = processes.ALONE
+    aliases: dict | None = None  # {column: {old name: name}}: a file written before a rename (csvfile.read)
     rows: list[dict] = dataclasses.field(default_factory=list, init=False)
     _own: list[dict] = dataclasses.field(default_factory=list, init=False)
 
     def read(self) -> list[dict]:
-        return csvfile.read(self.path, self.fields, self.what)
+        return csvfile.read(self.path, self.fields, self.what, self.aliases)
 
     def merge(self) -> list[dict]:
         """The process files beside the results file merged into it (:func:`csvfile.merge`)."""
-        return csvfile.merge(self.path, self.fields, self.what, self.key, self.order)
+        return csvfile.merge(self.path, self.fields, self.what, self.key, self.order, self.aliases)
 
     def start(self) -> None:
         """The leader merges what a killed run of several processes left; every process waits for it."""

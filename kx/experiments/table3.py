@@ -1,5 +1,5 @@
 """The paper's experiment protocol (SPEC section 6): source runs in 3v2, target runs in 4v3, 5v3 and 6v4
-with and without transfer and novelty, every run measured twice, one tidy results file.
+with and without transfer and the novelty hybrid, every run measured twice, one tidy results file.
 
 Over 450 lines because the protocol's constants, its seeding, each run's config and its resumable run all read the
 same RunSpec; its planning and its results file live apart (kx.experiments.planning, kx.experiments.runner).
@@ -9,8 +9,8 @@ For each method and run index ``i``:
 * *source* runs in 3v2 (``source_generations``): one with ``objective = fitness`` and one with
   ``objective = hybrid``, when a selected setup needs it;
 * *target* runs in each target task (``target_generations``), one per setup (:data:`SETUPS`): no
-  transfer; fitness transfer (seeded with fitness source ``i``'s whole final population); fitness +
-  novelty transfer (seeded with hybrid source ``i``, the hybrid in the target too); and, beyond the
+  transfer; fitness transfer (seeded with fitness source ``i``'s whole final population); hybrid
+  transfer (the paper's Fitness + NS: seeded with hybrid source ``i``, the hybrid in the target too); and, beyond the
   paper, no transfer with the hybrid. CMA-ES (:data:`METHOD_SETUPS`) has no transfer and the transfer of
   its source's mean and step size, with generations scaled so that its budget in evaluations equals
   NEAT's; PPO has no transfer and the transfer of its source's final weights, NEAT's generations of
@@ -65,9 +65,13 @@ class Setup:
 SETUPS = {
     "none": Setup("No transfer", None, "fitness"),
     "fitness": Setup("Fitness transfer", "fitness", "fitness"),
-    "novelty": Setup("Fitness + NS transfer", "hybrid", "hybrid"),
-    "none_novelty": Setup("No transfer, fitness + NS", None, "hybrid"),  # beyond the paper
+    "hybrid": Setup("Hybrid transfer", "hybrid", "hybrid"),  # the paper's "Fitness + NS"
+    "none_hybrid": Setup("No transfer, hybrid", None, "hybrid"),  # beyond the paper
 }
+#: the hybrid's setups under the names they had before (``novelty``, ``none_novelty``): a folder written then reads
+#: as one written now (results.csv, protocol.json's design, the run directories), and its runs keep their seeds
+OLD_SETUPS = {"novelty": "hybrid", "none_novelty": "none_hybrid"}
+ALIASES = {"setup": OLD_SETUPS}
 #: the setups each method runs (CMA-ES, the standard optimiser, and PPO, the gradient-based learner: fitness only)
 METHOD_SETUPS = {"neat": tuple(SETUPS), "hyperneat": tuple(SETUPS), "cma_es": ("none", "fitness"),
                  "ppo": ("none", "fitness")}
@@ -142,6 +146,8 @@ class RunSpec:
 def run_seed(protocol_seed: int, method: str, setup: str, phase: str, target: str, run: int) -> int:
     """The seed of one run: a hash of the protocol seed and the run's place in the protocol (method, setup,
     phase, target, run index), so that no two runs share training or validation states."""
+    if phase == "target":  # the hybrid's setups keep the seeds of their old names
+        setup = {new: old for old, new in OLD_SETUPS.items()}.get(setup, setup)
     text = f"kx-table3/{protocol_seed}/{method}/{setup}/{phase}/{target}/{run}".encode()
     return int.from_bytes(hashlib.blake2b(text, digest_size=8).digest(), "little") % (2**31 - 1)
 
@@ -159,7 +165,7 @@ def plan(methods=METHODS, targets=TARGETS, setups=tuple(SETUPS), runs: int = 20)
     (so that every cell grows together), per method its sources first, then its target runs."""
     methods = check_choice("--methods", methods, METHODS)
     targets = check_choice("--targets", targets, TARGETS)
-    setups = check_choice("--setups", setups, SETUPS)
+    setups = check_choice("--setups", [OLD_SETUPS.get(s, s) for s in setups], SETUPS)
     if not isinstance(runs, int) or runs < 1:
         raise ValueError(f"--runs: allowed an integer >= 1, got {runs!r}")
     out = []
@@ -188,7 +194,14 @@ def source_of(spec: RunSpec, sources: str = "shared") -> RunSpec | None:
 
 
 def run_dir(out: pathlib.Path, spec: RunSpec) -> pathlib.Path:
-    return pathlib.Path(out) / "runs" / spec.method / f"{spec.phase}-{spec.setup}" / spec.target / f"run{spec.run:02d}"
+    """The run's directory, ``out/runs/<method>/<phase>-<setup>/<task>/run<NN>`` (a folder's directory under its
+    setup's old name where it has one: :data:`OLD_SETUPS`)."""
+    def under(setup: str) -> pathlib.Path:
+        return pathlib.Path(out) / "runs" / spec.method / f"{spec.phase}-{setup}" / spec.target / f"run{spec.run:02d}"
+
+    here = under(spec.setup)
+    old = [under(o) for o, new in OLD_SETUPS.items() if new == spec.setup and spec.phase == "target"]
+    return old[0] if old and old[0].is_dir() and not here.exists() else here
 
 
 def _reference_population(protocol: Protocol) -> int:
@@ -238,7 +251,7 @@ def episodes(cfg: ml_collections.ConfigDict) -> int:
 
 def read_results(path: pathlib.Path) -> list[dict]:
     """results.csv's rows (strings), in file order; [] when there is none."""
-    return csvfile.read(path, FIELDS, "kx table3 results file")
+    return csvfile.read(path, FIELDS, "kx table3 results file", ALIASES)
 
 
 def row_key(row: dict) -> tuple:
@@ -399,7 +412,7 @@ def ledger(out: pathlib.Path, shard: processes.Shard = processes.ALONE) -> runne
     """The protocol folder's results.csv under ``shard`` (:class:`kx.experiments.runner.Ledger`): its process
     files merged in the plan's order."""
     return runner.Ledger(pathlib.Path(out) / "results.csv", FIELDS, "kx table3 results file", row_key, _order,
-                         "table3", shard)
+                         "table3", shard, ALIASES)
 
 
 def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
