@@ -34,6 +34,10 @@ baseline is measured in the same run (these machines are shared and noisy).
   (``--processes 1 2``; kx.experiments.processes): runs per hour for each, the same results checked.
 * ``neat_generation``: one NEAT generation step (speciate and reproduce) against evaluating the same
   population of 150 networks on 30 keep-away trials, over a real 3v2 run.
+* ``platform``: whether this machine plays the shipped CPU digest's heuristic episodes bit for bit (checksums
+  of the world's integer state, stage by stage, on the default backend and, beside an accelerator, on the host
+  CPU backend, each in a process of its own), the first entry that differs where one does, and the digest's
+  seconds warm and with compilation; the ratio is the share of stages that match.
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from kx.bench import (
     neat_generation,
     neat_xor,
     novelty,
+    platform,
     policies,
     ppo,
     protocol,
@@ -61,14 +66,14 @@ from kx.bench import (
 BENCHES = {"sim": sim.run, "neat_generation": neat_generation.run, "neat_xor": neat_xor.run,
            "generation": generation.run, "learning": learning.run, "hyperneat": hyperneat.run,
            "novelty": novelty.run, "transfer": transfer.run, "runs": runs.run, "policies": policies.run,
-           "protocol": protocol.run, "ppo": ppo.run}
+           "protocol": protocol.run, "ppo": ppo.run, "platform": platform.run}
 
 
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(prog="python -m kx.bench", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", choices=sorted(BENCHES))
-    p.add_argument("--episodes", type=int, default=4500)
+    p.add_argument("--episodes", type=int, default=4500, help="sim, platform: start states of 3v2")
     p.add_argument("--repeats", type=int, default=5, help="sim, policies: samples per figure (the median is reported)")
     p.add_argument("--sample-seconds", type=float, default=2.0,
                    help="sim, policies: the least work per sample, in seconds")
@@ -102,6 +107,13 @@ def main(argv=None) -> None:
                    help="protocol: the process counts to compare (default 1 2)")
     p.add_argument("--protocol-runs", type=int, default=4, help="protocol: runs a cell of the slice")
     p.add_argument("--protocol-generations", type=int, default=5, help="protocol: generations a run of the slice")
+    p.add_argument("--backends", default=None,
+                   help="platform: comma-separated, of default, cpu, gpu, tpu (default: the default backend, and "
+                        "cpu too where the default is an accelerator)")
+    p.add_argument("--out", default=None, help="platform: write this platform's digest to this JSON file")
+    p.add_argument("--reference", default=None,
+                   help="platform: the digest to compare with (default: the shipped CPU digest, "
+                        "kx/bench/data/platform_digest_cpu.json)")
     args = p.parse_args(argv)
     if args.seeds is None:
         args.seeds = 5 if args.name == "transfer" else 10
