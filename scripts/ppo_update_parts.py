@@ -4,12 +4,12 @@ one process (the figures of docs/benchmarks.md, "Levers for PPO's wall time").
     python scripts/ppo_update_parts.py RUN_DIR "rollout='iteration',num_envs=512,num_steps=16" "update_epochs=1"
 
 RUN_DIR: a 3v2 ``ppo`` run whose validated champion plays (its hidden width is the base's); the first setting is
-the base (:class:`kx.ppo.PPOConfig` fields), each further one changes it (a setting of another ``hidden`` acts
-with fresh weights of that width from the same episodes, its figure per decision of its own update). Each
-setting's episodes are first played 30 rollouts on from fresh starts with the champion, so that they are as
-long as training's late episodes; then every setting's update (learning rate 0: the same episodes each time)
-and the base's rollout alone are timed in turn, 7 rounds, and the medians printed in milliseconds and in
-microseconds per decision.
+the base (:class:`kx.evolve.encodings.ppo.algorithm.PPOConfig` fields), each further one changes it (a setting
+of another ``hidden`` acts with fresh weights of that width from the same episodes, its figure per decision of
+its own update). Each setting's episodes are first played 30 rollouts on from fresh starts with the champion,
+so that they are as long as training's late episodes; then every setting's update (learning rate 0: the same
+episodes each time) and the base's rollout alone are timed in turn, 7 rounds, and the medians printed in
+milliseconds and in microseconds per decision.
 """
 
 import argparse
