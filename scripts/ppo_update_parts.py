@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from kx import ppo
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
+from kx.evolve.encodings.ppo import algorithm as ppo
 
 
 def main(argv=None):
