@@ -76,7 +76,7 @@ def test_a_confirmatory_folder_is_opened_only_as_one(tmp_path, capsys):
 
 
 def test_the_committed_design_fixes_every_paper_cell_within_the_affordable_most():
-    dsg = json.loads((ROOT / "docs" / "table3_confirmatory" / "protocol.json").read_text())["design"]
+    dsg = design.renamed(json.loads((ROOT / "docs" / "table3_confirmatory" / "protocol.json").read_text())["design"])
     assert dsg["role"] == "confirmatory" and dsg["sources"] == "per_target" and dsg["looks"] == "planned"
     assert dsg["test"] == design.TEST and dsg["margin"] == list(design.MARGIN)
     assert dsg["primary"] == [c.key for c in design.PRIMARY]
@@ -96,7 +96,7 @@ def test_the_committed_design_fixes_every_paper_cell_within_the_affordable_most(
 @pytest.mark.slow
 def test_the_committed_design_is_what_docs_table3_gives_again():
     """derive() from docs/table3 (whose results the design records by digest) gives the committed design."""
-    dsg = json.loads((ROOT / "docs" / "table3_confirmatory" / "protocol.json").read_text())["design"]
+    dsg = design.renamed(json.loads((ROOT / "docs" / "table3_confirmatory" / "protocol.json").read_text())["design"])
     derived = confirm.derive(ROOT / "docs" / "table3", log=lambda s: None)
     assert derived["basis"]["results_sha256"] == dsg["basis"]["results_sha256"]
     assert derived["runs"] == dsg["runs"] and derived["basis"] == dsg["basis"]

@@ -21,6 +21,7 @@ from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
 from kx.experiments import csvfile, design, measure, planning, report, stats, sweep
+from kx.experiments import progress as progress_lib
 from kx.experiments import table3 as t3
 
 # the small run config the other run tests use (test_transfer.py): its programs are compiled once
@@ -569,7 +570,7 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     then this process's), else of its method, phase and task, else of its method and phase on other tasks (said
     apart); the current group less what it has run; runs with none of these are counted apart, not guessed."""
     clock = [100.0]
-    monkeypatch.setattr(t3.time, "perf_counter", lambda: clock[0])
+    monkeypatch.setattr(progress_lib.time, "perf_counter", lambda: clock[0])
     row = lambda s, p, t, w: {"method": "neat", "setup": s, "phase": p, "target": t, "wall_seconds": str(w)}  # noqa: E731
     rows = [row("none", "target", "5v3", 100), row("none", "target", "5v3", 140), row("fitness", "source", "3v2", 20),
             row("none", "target", "4v3", 50), row("fitness", "target", "5v3", 300)]
@@ -578,7 +579,7 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
             [spec("none", "target", "6v4", 0)], [spec("fitness", "target", "5v3", 2)],
             [spec("hybrid", "target", "5v3", 2)], [t3.RunSpec("hyperneat", "none", "target", "4v3", 0)]]
     lines = []
-    progress = planning.Progress(lines.append, todo, 3, 9, rows)
+    progress = progress_lib.Progress(lines.append, todo, 3, 9, rows)
     progress.start(todo[0][0], "group")
     clock[0] += 30.0
     # the current group (2 x 120 s, its cell's mean) has run 30 s: 210 s left; the source 20; 6v4, with no run
@@ -594,13 +595,14 @@ def test_the_eta_costs_the_runs_to_go_at_the_finished_runs_of_their_kind(monkeyp
     progress.start(todo[1][0], "next")
     assert progress.eta() == (20.0 + 130.0 + 300.0 + 150.0, 6, 1, 1)
     # one cell's runs: the estimate rests on those alone
-    assert planning.Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows).eta()[1:] == (1, 0, 0)
-    assert planning.Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
+    one = progress_lib.Progress(lines.append, [[spec("fitness", "target", "5v3", 1)]], 0, 1, rows)
+    assert one.eta()[1:] == (1, 0, 0)
+    assert progress_lib.Progress(lines.append, [[t3.RunSpec("cma_es", "none", "target", "6v4", 1)]], 0, 1,
                         rows).eta_text().startswith("  protocol ETA unknown")
     # two local processes share the machine: a run's recorded wall time is half its time on the clock, and
     # the current group (2 x 2 x 120 s) has run 30 s of it
     monkeypatch.setenv(t3.processes.ENV_LOCAL, "2")
-    shared = planning.Progress(lines.append, todo[:2], 3, 9, rows[:3])
+    shared = progress_lib.Progress(lines.append, todo[:2], 3, 9, rows[:3])
     shared.start(todo[0][0], "group")
     clock[0] += 30.0
     assert shared.eta() == (2 * 240.0 - 30.0 + 2 * 20.0, 3, 0, 0)

@@ -24,6 +24,7 @@ from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs
 from kx.evolve import run as run_lib
+from kx.evolve.trainer import RunGroup, run_state, stack_states
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 DONE = 2  # generations in the template's checkpoint
@@ -39,6 +40,15 @@ def _row(trainer, g):
                best_validation_generation=0, live_fraction=0.5, live_steps=10, eval_seconds=0.01,
                evolve_seconds=0.01, validation_seconds=0.0, generation_seconds=0.02)
     return row
+
+
+def stub_step(monkeypatch, step) -> None:
+    """Stubs the generation step there is (:meth:`RunGroup.step`, which the run loop drives for a run alone too)
+    with ``step(trainer, state) -> GenerationResult`` for each run of the group."""
+    def group_step(self, stacked):
+        results = [step(t, run_state(stacked, j)) for j, t in enumerate(self.trainers)]
+        return stack_states([r.state for r in results]), [r.row for r in results]
+    monkeypatch.setattr(RunGroup, "step", group_step)
 
 
 def _fake_step(self, state):
@@ -78,7 +88,7 @@ def template(tmp_path_factory):
 @pytest.fixture
 def run_dir(template, tmp_path, monkeypatch):
     """A copy of the template, with the generation step and the baselines stubbed."""
-    monkeypatch.setattr(run_lib.Trainer, "step", _fake_step)
+    stub_step(monkeypatch, _fake_step)
     monkeypatch.setattr(run_lib.Trainer, "validation_baselines", lambda self: dict(BASELINES))
     return pathlib.Path(shutil.copytree(template, tmp_path / "run"))
 
@@ -125,7 +135,7 @@ def _compiling_step(self, state):
 
 @pytest.mark.parametrize("metrics", ["deleted", "truncated"])
 def test_eta_comes_from_this_process_even_when_metrics_csv_lacks_rows(run_dir, metrics, monkeypatch):
-    monkeypatch.setattr(run_lib.Trainer, "step", _compiling_step)
+    stub_step(monkeypatch, _compiling_step)
     monkeypatch.setattr(run_lib, "time", _Clock())
     if metrics == "deleted":
         (run_dir / "metrics.csv").unlink()
@@ -149,7 +159,7 @@ def test_eta_comes_from_this_process_even_when_metrics_csv_lacks_rows(run_dir, m
 # 2. nothing to do ---------------------------------------------------------------------------------
 
 def test_a_resume_with_nothing_to_do_writes_nothing(run_dir, monkeypatch, capsys):
-    monkeypatch.setattr(run_lib.Trainer, "step", _no_step)
+    stub_step(monkeypatch, _no_step)
     monkeypatch.setattr(run_lib.Trainer, "validation_baselines", lambda self: pytest.fail("baselines computed"))
     before = _snapshot(run_dir)
     time.sleep(0.01)  # any rewrite would show in the mtimes
@@ -213,7 +223,7 @@ def test_a_second_process_is_refused_before_any_compute(run_dir, holder, monkeyp
     proc.wait()
     assert (run_dir / "run.lock").is_file()
     monkeypatch.undo()
-    monkeypatch.setattr(run_lib.Trainer, "step", _fake_step)
+    stub_step(monkeypatch, _fake_step)
     monkeypatch.setattr(run_lib.Trainer, "validation_baselines", lambda self: dict(BASELINES))
     logs = []
     run_lib.train(cfg, run_dir, resume=True, log=logs.append)
@@ -225,7 +235,7 @@ def test_the_lock_is_released_when_the_run_fails(run_dir, monkeypatch):
     def boom(self, state):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(run_lib.Trainer, "step", boom)
+    stub_step(monkeypatch, boom)
     with pytest.raises(KeyboardInterrupt):
         run_lib.train(_cfg(run_dir, DONE + 2), run_dir, resume=True, log=lambda s: None)
     assert not (run_dir / "run.lock").exists()

@@ -20,6 +20,7 @@ from kx.evolve import run as run_lib
 from kx.evolve import streams, transfer
 from kx.evolve.checkpoint import RunError
 from kx.evolve.config import ConfigError
+from kx.evolve.trainer import RunGroup
 from kx.neat.checks import check_population
 from kx.sim import env
 
@@ -192,7 +193,7 @@ def _start_and_kill(cfg, run_dir, monkeypatch, at: str) -> None:
         raise _Killed(at)
     with monkeypatch.context() as m:
         if at == "step":
-            m.setattr(run_lib.Trainer, "step", killed)
+            m.setattr(RunGroup, "step", killed)  # the generation step there is, for a run alone too
         else:
             m.setattr(ckpt, "save", killed)
         with pytest.raises(_Killed):

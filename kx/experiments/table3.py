@@ -46,7 +46,8 @@ import ml_collections
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
-from kx.experiments import csvfile, design, measure, planning, processes, runner
+from kx.experiments import csvfile, design, measure, processes, runner
+from kx.experiments import progress as progress_lib
 
 METHODS = ("neat", "hyperneat", "cma_es", "ppo")
 METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES", "ppo": "PPO"}  # as reports print them
@@ -484,7 +485,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                 needed.append(s)
     total = len({s.key for s in specs} | {s.key for s in needed})
     again, chunks = groups(rebuild, batch), groups(needed, batch)
-    progress = planning.Progress(log, again + chunks, total - len(needed), total, rows)
+    progress = progress_lib.Progress(log, again + chunks, total - len(needed), total, rows)
     grouped = f" in {len(chunks)} groups of up to {batch}" if batch > 1 and chunks else ""
     redo = f"; {len(rebuild)} finished sources without a run directory trained again first" if rebuild else ""
     done = sum(1 for k in {s.key for s in specs} | {s.key for s in needed} if k in recorded)
