@@ -135,7 +135,7 @@ def run(args) -> None:
         hyper, neat = mean["HyperNEAT"], mean["NEAT"]
         print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, "
               f"{hyper / neat:.2f}x NEAT)")
-    for name in ("PPO", "PPO-iteration", "PPO-entity"):
+    for name in ("PPO", "PPO-iteration", "PPO-iteration-2dev", "PPO-entity"):
         if name in mean and "NEAT" in mean:
             print(f"{name}: {mean[name]:.4f} fitness ({mean[name] / test['heuristic']:.1f}x the heuristic, "
                   f"{mean[name] / mean['NEAT']:.2f}x NEAT)")
