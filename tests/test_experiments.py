@@ -20,7 +20,7 @@ import statsmodels.stats.multitest
 from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
-from kx.experiments import csvfile, design, measure, planning, report, stats, sweep
+from kx.experiments import confirm, csvfile, design, measure, planning, report, stats, sweep
 from kx.experiments import progress as progress_lib
 from kx.experiments import table3 as t3
 
@@ -322,6 +322,12 @@ def test_a_folder_written_under_the_hybrids_old_setup_names_reads_as_one_written
     dsg = design.of_folder(committed.parent / "table3_confirmatory")
     assert dsg["runs"]["neat/hybrid"] == recorded["runs"]["neat/novelty"] and "novelty" not in json.dumps(dsg["runs"])
     assert design.renamed(recorded["primary"]) == [c.key for c in design.PRIMARY]
+    # the confirmatory folder, written under the old names, resumes under the new ones
+    (tmp_path / "c").mkdir()
+    shutil.copy(committed.parent / "table3_confirmatory" / "protocol.json", tmp_path / "c" / "protocol.json")
+    opened = confirm.open_folder(tmp_path / "c", t3.Protocol.read(tmp_path / "c" / "protocol.json"), None,
+                                 log=lambda s: None)
+    assert {s.setup for s in confirm.specs(opened, 0, 40)} == set(design.PAPER_SETUPS)
 
 
 def test_cma_es_budget_in_evaluations_equals_neats(tmp_path):

@@ -114,7 +114,7 @@ def open_folder(out: pathlib.Path, protocol: t3.Protocol, basis: pathlib.Path | 
             raise RunError(f"{path}: not a confirmatory protocol (its design's role is "
                            f"{have.get('design', {}).get('role', 'exploratory')!r}): use another --out")
         t3.same_protocol(out, protocol)
-        return have["design"]
+        return design.renamed(have["design"])  # a folder written under the hybrid's old setup names too
     if basis is None:
         raise RunError(f"{out}: a new confirmatory folder derives its design from an earlier one: give --basis DIR")
     if protocol.sources != "per_target":

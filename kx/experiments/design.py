@@ -274,7 +274,7 @@ def check_folder(out: pathlib.Path, protocol, tasks, log: Callable[[str], None] 
     tasks = tuple(tasks)
     states = {"stream": "kx.evolve.streams.test(seed)", "seed": protocol.seed, "trials": protocol.test_trials,
               "sha256": test_state_digests(protocol, tasks)}
-    want = {"test_states": states, "design": want_design or design(sources=protocol.sources)}
+    want = {"test_states": states, "design": renamed(want_design) if want_design else design(sources=protocol.sources)}
     added = []
     if "design" in have and "test" not in have["design"]:
         old = have["design"]
