@@ -1,6 +1,9 @@
 """``python -m kx.bench platform``: does this machine play the reference's keep-away episodes bit for bit, and
 how fast does it compute them?
 
+Over 450 lines because the digest's nine stages, their comparison and the backends' subprocesses are one check:
+apart, a stage's checksum would sit away from the comparison that names where two platforms part.
+
 **What it measures.** Everything the world computes is integer or exactly rounded (:mod:`kx.sim.geometry`),
 and the heuristic counts margins within :data:`kx.sim.policies.MARGIN_TOL` as equal, so the same start
 states and kick-noise words give the same episodes on every platform, bit for bit, unless a platform (a GPU

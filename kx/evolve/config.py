@@ -1,5 +1,8 @@
 """Experiment configs: ``ml_collections.ConfigDict`` files under ``configs/``, checked before any compute.
 
+Over 450 lines because it is the one place a config is built, loaded, validated and read back from a run directory;
+every field's allowed values and its error message stand beside its default.
+
 A config file defines ``get_config()`` and usually starts from :func:`base_config`, which gives the run
 loop's fields and the config section of one method (``base_config("cma_es")`` ...; the default is the
 paper's source task with NEAT: 3v2, population 150, 30 trials, 20 generations). ``kx.train`` loads one
