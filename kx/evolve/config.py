@@ -1,7 +1,7 @@
 """Experiment configs: ``ml_collections.ConfigDict`` files under ``configs/``, checked before any compute.
 
-Over 450 lines because it is the one place a config is built, loaded, validated and read back from a run directory;
-every field's allowed values and its error message stand beside its default.
+Over 450 lines because it is the one place a config is built, loaded, checked and read back from a run
+directory: the fields' defaults and their checks stay together.
 
 A config file defines ``get_config()`` and usually starts from :func:`base_config`, which gives the run
 loop's fields and the config section of one method (``base_config("cma_es")`` ...; the default is the
