@@ -59,8 +59,9 @@ def run(args) -> None:
         raise SystemExit("configs/ppo_4v3.py: its task differs from the NEAT fixture's")
     pcfg = enc.ppo
     steps_per_update = pcfg.num_envs * pcfg.num_steps
-    update = jax.jit(ppo.make_update(pcfg, enc.env, enc.sim_params))
-    learner = jax.jit(lambda k: ppo.init(k, pcfg, enc.env, enc.sim_params))(jax.random.key(args.seed))
+    world = ppo.environment(pcfg, enc.sim)  # the environment the encoding trains on
+    update = jax.jit(ppo.make_update(pcfg, world, enc.sim_params))
+    learner = jax.jit(lambda k: ppo.init(k, pcfg, world, enc.sim_params))(jax.random.key(args.seed))
     lr = np.float32(pcfg.lr)
     print(f"devices: {jax.local_device_count()} x {jax.devices()[0].platform}; task {exp.sim.name}", flush=True)
     lanes = meta["population_size"] * trainer.cfg.trials
@@ -88,7 +89,7 @@ def run(args) -> None:
           f"{t_warm:.1f} s, the last ones' training return {np.mean(returns[-10:]) if returns else float('nan'):.3f}",
           flush=True)
 
-    rollout = jax.jit(ppo.make_rollout(pcfg, enc.env, enc.sim_params))
+    rollout = jax.jit(ppo.make_rollout(pcfg, world, enc.sim_params))
     jax.block_until_ready(rollout(learner, key))
     state = {"learner": learner, "n": 0}
 
@@ -115,12 +116,12 @@ def run(args) -> None:
     # vmapped (batch first) against the batched step (batch-last), median of 5 calls after one that compiles
     n_env = 1024
     keys = jax.random.split(jax.random.key(args.seed + 2), n_env)
-    _, batch = enc.env.reset_batch(jax.random.key(args.seed + 2), n_env, enc.sim_params)
+    _, batch = world.reset_batch(jax.random.key(args.seed + 2), n_env, enc.sim_params)
     one = jax.tree.map(lambda a: jnp.moveaxis(a, -1, 0), batch)
     hold = jnp.zeros((n_env,), jnp.int32)
-    env_calls = {"vmapped": (jax.jit(jax.vmap(enc.env.step_env, in_axes=(0, 0, 0, None))),
+    env_calls = {"vmapped": (jax.jit(jax.vmap(world.step_env, in_axes=(0, 0, 0, None))),
                              (keys, one, hold, enc.sim_params)),
-                 "batched": (jax.jit(enc.env.step_batch_env), (batch, hold, enc.sim_params))}
+                 "batched": (jax.jit(world.step_batch_env), (batch, hold, enc.sim_params))}
     env_us = {}
     for name, (fn, call_args) in env_calls.items():
         jax.block_until_ready(fn(*call_args))
