@@ -65,7 +65,8 @@ def test_a_confirmatory_folder_is_opened_only_as_one(tmp_path, capsys):
     committed.mkdir()
     shutil.copy(ROOT / "docs" / "table3_confirmatory" / "protocol.json", committed)
     recorded = json.loads((committed / "protocol.json").read_text())["design"]
-    assert confirm.open_folder(committed, protocol, None) == recorded
+    assert confirm.open_folder(committed, protocol, None) == design.renamed(recorded)  # under today's setup names
+    assert design.renamed(recorded) != recorded  # the committed file was written under the old ones
     with pytest.raises(RunError, match="holds another protocol"):
         confirm.open_folder(committed, t3.Protocol(seed=2, sources="per_target"), None)
     # the CLI says it before any compute
