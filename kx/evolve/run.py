@@ -110,7 +110,7 @@ def record_runtime(run_dir: pathlib.Path, start: int, impl: dict) -> None:
 def evolve_in_memory(trainer: Trainer, log: Callable[[dict], None] | None = None) -> tuple[RunState, list[dict]]:
     """All of ``trainer``'s generations with no run directory: the final run state (its validated
     champion included) and the metrics row of every generation, as :func:`train` would write them."""
-    run = InMemoryRun(trainer, trainer.init(), log)
+    run = InMemoryRun(trainer.init(), log)
     advance([run], trainer.alone(), trainer.cfg.generations,
             notice=lambda m: print(m, file=sys.stderr, flush=True))
     return run.state, run.rows
@@ -128,7 +128,6 @@ class _Run:
 class InMemoryRun(_Run):
     """A run with no directory: its state and its metrics rows, each row passed to ``log``."""
 
-    trainer: Trainer
     state: RunState
     log: Callable[[dict], None] | None = None
     rows: list = dataclasses.field(default_factory=list)
