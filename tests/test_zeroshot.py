@@ -40,6 +40,11 @@ def test_bad_input_is_refused_naming_the_field_before_any_compute(argv, want, tm
     assert not (tmp_path / "z").exists()
 
 
+def test_a_report_of_a_folder_without_a_study_is_refused(tmp_path, capsys):
+    assert cli.main(["zeroshot", "--out", str(tmp_path), "--report-only"]) == 2
+    assert "no zeroshot.json: not a zero-shot study's folder" in capsys.readouterr().err
+
+
 def test_each_learner_has_a_config_the_mix_trains_on_two_tasks_at_the_same_budget():
     cfgs = zs.check(zs.Study())
     assert list(cfgs) == list(zs.LEARNERS)

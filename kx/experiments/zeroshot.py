@@ -327,6 +327,8 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
     """``out/report.md`` and ``out/zeroshot.png`` from ``out``'s zeroshot.json, results.csv and baselines.csv and the
     recorded Table 3 folder's results.csv and protocol.json alone (fixed bootstrap seeds: byte for byte the same)."""
     out = pathlib.Path(out)
+    if not (out / "zeroshot.json").is_file():
+        raise RunError(f"{out}: no zeroshot.json: not a zero-shot study's folder (python -m kx.experiments zeroshot)")
     rec = json.loads((out / "zeroshot.json").read_text())
     rows = read_results(out)
     if not rows:
@@ -424,7 +426,8 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
                   f"{sum(float(r['test_seconds']) for r in rs):.0f} |")
     md += ["", "Each learner's whole resolved config (but the seed) is in `zeroshot.json` "
            "(`learners.<name>.resolved`); a run's seed is its seed; "
-           "its training seconds are its share of its batched group's on the machine.", ""]
+           "its training seconds are its share of its batched group's on the machine; a learner's zero-shot test "
+           "seconds include the compilation of its first run's evaluations.", ""]
     _plot(out, by, base, goal)
     path = out / "report.md"
     path.write_text("\n".join(md))
