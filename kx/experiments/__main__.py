@@ -1,4 +1,4 @@
-"""Experiments: ``python -m kx.experiments {table3,confirm,novelty,report,sweep}``.
+"""Experiments: ``python -m kx.experiments {table3,confirm,novelty,report,sweep,zeroshot}``.
 
     python -m kx.experiments table3 --runs 20 --out runs/table3            # the paper's protocol (SPEC section 6)
     python -m kx.experiments table3 --runs 5 --methods neat --targets 4v3 --out runs/t3   # a part of it
@@ -7,10 +7,19 @@
     python -m kx.experiments report runs/table3                            # report.md + PNGs from results.csv
     python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\
         --grid hyperneat.image=paper,authors --seeds 0-4 --out runs/image  # an ablation sweep
+    python -m kx.experiments zeroshot --out docs/zeroshot                 # every learner's 3v2 champions, zero-shot
+    python -m kx.experiments zeroshot --out runs/zs --learners ppo --seeds 0-2 \
+        --config-of ppo=configs/ppo_3v2_iteration.py                      # a part of it, another config of PPO
 
-``table3``, ``novelty`` and ``sweep`` are resumable: run the same command again after a kill; finished runs are never
-redone, a run killed half-way resumes from its checkpoint, and the same folder accumulates parts of one
-protocol. Both write their report when they finish.
+``zeroshot`` trains each learner (``--learners``, of neat, hyperneat, cma_es, ppo, ppo_entity, ppo_entity_mix) on 3v2
+over ``--seeds`` and plays its validated champion, unchanged, on the test states of 3v2, 4v3, 5v3 and 6v4 (by default
+Table 3's: ``--test-seed 0``, ``--test-trials 1000``), beside the hand-coded policies; its report sets each score
+against the same learner trained in the target (docs/table3's no-transfer cells) and against NEAT evolved 50
+generations in the target (kx.experiments.zeroshot, docs/experiments.md).
+
+``table3``, ``novelty``, ``sweep`` and ``zeroshot`` are resumable: run the same command again after a kill;
+finished runs are never redone, a run killed half-way resumes from its checkpoint, and the same folder accumulates
+parts of one protocol. Each writes its report when it finishes.
 """
 
 from __future__ import annotations
@@ -112,12 +121,27 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--batch", type=int, default=16,
                    help="seeds of one combination trained as one batched group, at most; 1: one by one")
     _processes_args(s)
+    z = sub.add_parser("zeroshot", help="every learner trained on 3v2, its champions zero-shot on 4v3, 5v3, 6v4")
+    z.add_argument("--out", required=True, help="the study's folder (zeroshot.json, results.csv, report.md, runs/)")
+    z.add_argument("--learners", type=_list, default=None,
+                   help="of neat, hyperneat, cma_es, ppo, ppo_entity, ppo_entity_mix (default: every one)")
+    z.add_argument("--seeds", default="0-9", help="each learner's seeds (default 0-9)")
+    z.add_argument("--test-trials", type=int, default=1000, help="test states a task (default 1000, Table 3's)")
+    z.add_argument("--test-seed", type=int, default=0, help="the test stream's seed (default 0, Table 3's)")
+    z.add_argument("--config-of", action="append", default=[], metavar="LEARNER=FILE",
+                   help="train LEARNER with FILE instead of its shipped config; repeatable")
+    z.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                   help="a config override for every learner's runs; repeatable")
+    z.add_argument("--table3", default="docs/table3",
+                   help="the Table 3 folder whose no-transfer cells the report divides by (default docs/table3)")
+    z.add_argument("--batch", type=int, default=16, help="seeds of one learner trained as one batched group, at most")
+    z.add_argument("--report-only", action="store_true", help="write report.md from the folder's files and stop")
     args = p.parse_args(argv)
 
     from kx.experiments import processes
 
     shard = processes.ALONE
-    if args.command not in ("report", "confirm", "reproduce"):
+    if args.command not in ("report", "confirm", "reproduce", "zeroshot"):
         if args.processes < 1:
             print(f"python -m kx.experiments {args.command}: --processes: allowed an integer >= 1, got "
                   f"{args.processes}", file=sys.stderr)
@@ -158,7 +182,10 @@ def _command(args: argparse.Namespace, shard) -> int:
     try:
         if args.command == "report":
             d = pathlib.Path(args.dir)
-            if (d / "novelty.json").is_file():
+            if (d / "zeroshot.json").is_file():
+                from kx.experiments import zeroshot
+                print(zeroshot.write_report(d))
+            elif (d / "novelty.json").is_file():
                 from kx.experiments import novelty
                 print(novelty.write_report(d))
             elif (d / "sweep.json").is_file():
@@ -197,6 +224,17 @@ def _command(args: argparse.Namespace, shard) -> int:
                         args.runs, targets, args.table3, batch=args.batch, shard=shard)
             if shard.leader:
                 print(novelty.write_report(args.out))
+            return 0
+        if args.command == "zeroshot":
+            from kx.evolve.config import parse_seeds
+            from kx.experiments import zeroshot
+            if not args.report_only:
+                study = zeroshot.Study(
+                    learners=tuple(zeroshot.LEARNERS) if args.learners is None else args.learners,
+                    seeds=tuple(parse_seeds(args.seeds)), test_trials=args.test_trials, test_seed=args.test_seed,
+                    configs=zeroshot.parse_config_of(args.config_of), overrides=tuple(args.set), table3=args.table3)
+                zeroshot.run(args.out, study, batch=args.batch)
+            print(zeroshot.write_report(args.out))
             return 0
         for name in ("test_trials",) + (("runs", "source_generations", "target_generations")
                                         if args.command == "table3" else ()):

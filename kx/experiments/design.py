@@ -228,7 +228,8 @@ def planned_runs(dsg: dict, method: str, setup: str) -> int | None:
 START_FIELDS = ("keeper_x", "keeper_y", "taker_x", "taker_y", "holder", "ball_x", "ball_y")
 
 
-def _states_digest(states) -> str:
+def states_digest(states) -> str:
+    """The sha256 of start states' :data:`START_FIELDS` (what two folders' test states are compared by)."""
     h = hashlib.sha256()
     for name in START_FIELDS:
         a = np.ascontiguousarray(np.asarray(getattr(states, name)))
@@ -255,7 +256,7 @@ def test_state_digests(protocol, tasks) -> dict[str, str]:
                            "test states per task assumes they are the same")
         cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"neat_{task}.py", list(protocol.overrides))
         exp = cfg_lib.validate(cfg)
-        out[task] = _states_digest(env.reset_batch(keys.starts, protocol.test_trials, exp.sim_params, exp.sim))
+        out[task] = states_digest(env.reset_batch(keys.starts, protocol.test_trials, exp.sim_params, exp.sim))
     return out
 
 

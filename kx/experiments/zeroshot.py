@@ -1,0 +1,460 @@
+"""The zero-shot study (issue 57, item 3): every learner trained on 3v2 alone, its validated champion played unchanged
+on the test states of 3v2, 4v3, 5v3 and 6v4, beside the hand-coded policies, and set against the same learner
+trained in the target (Table 3's no-transfer runs) and against NEAT evolved 50 generations in the target (the goal).
+
+``python -m kx.experiments zeroshot --out DIR [--learners neat,...] [--seeds 0-9] [--config-of LEARNER=FILE]`` trains
+each (learner, seed) not yet in ``DIR/results.csv`` in ``DIR/runs/<learner>/seed<k>`` (resumed from its checkpoint
+after a kill, never redone once its row is written: :func:`kx.experiments.measure.train_and_measure`, as a sweep's),
+and appends one row per run: the champion's mean fitness on ``test_trials`` test states of each task, the test stream
+of ``test_seed`` (:func:`kx.evolve.streams.test`). The defaults are Table 3's (protocol seed 0, 1000 states a task),
+so that a zero-shot score and a trained-in-target score are measured on the same states (their digests are recorded
+in ``DIR/zeroshot.json`` beside each learner's config file and its whole resolved config; the report compares them
+with docs/table3's). The hand-coded policies (:data:`kx.sim.policies.BASELINES`) play the same states once
+(``DIR/baselines.csv``). ``DIR/report.md`` and ``DIR/zeroshot.png`` are written from the folder's files and
+docs/table3's results alone (:func:`write_report`).
+
+A champion plays another task as ``kx.bench learning`` plays it: its encoding's policy for that task's world
+(``encoding.policy_for(sim)``): the fixed 13-input layout, HyperNEAT's substrate and the entity network fit every
+team size.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import time
+from typing import Callable
+
+import numpy as np
+
+from kx.evolve import config as cfg_lib
+from kx.evolve import outputs as run_outputs
+from kx.evolve.errors import ConfigError, RunError
+from kx.experiments import csvfile, design, measure, runner, stats
+from kx.experiments import table3 as t3
+
+#: the learners and the shipped config each trains with (``--config-of`` swaps one)
+LEARNERS = {"neat": "configs/neat_3v2.py", "hyperneat": "configs/hyperneat_3v2.py", "cma_es": "configs/cma_es_3v2.py",
+            "ppo": "configs/ppo_3v2.py", "ppo_entity": "configs/ppo_entity_3v2.py",
+            "ppo_entity_mix": "configs/ppo_entity_mix.py"}
+SOURCE = t3.SOURCE_TASK
+TASKS = (SOURCE, *t3.TARGETS)
+#: the seeds a learner the issue asks for
+SEEDS_ASKED = 10
+#: Table 3's test states (docs/table3/protocol.json: the test stream of its protocol seed, 1000 states a task)
+TEST_SEED, TEST_TRIALS = 0, 1000
+TABLE3 = "docs/table3"
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+SCORES = tuple(f"test_{t}" for t in TASKS)
+FIELDS = ("learner", "config", "seed", "method", "trained", "generations", "episodes", "max_fitness",
+          "champion_generation", *SCORES, "test_trials", "test_seed", "wall_seconds", "test_seconds")
+WHAT = "kx zeroshot results file"
+BASELINE_FIELDS = ("policy", "task", "test_fitness", "test_trials", "test_seed")
+
+
+@dataclasses.dataclass(frozen=True)
+class Study:
+    learners: tuple[str, ...] = tuple(LEARNERS)
+    seeds: tuple[int, ...] = tuple(range(SEEDS_ASKED))
+    test_trials: int = TEST_TRIALS
+    test_seed: int = TEST_SEED
+    configs: tuple[tuple[str, str], ...] = ()  # (learner, config file): what replaces LEARNERS' file
+    overrides: tuple[str, ...] = ()  # config overrides for every learner ("population_size=10", ...)
+    table3: str = TABLE3  # the Table 3 folder whose no-transfer cells the report divides by (relative: to the checkout)
+
+    def config_file(self, learner: str) -> str:
+        return dict(self.configs).get(learner, LEARNERS[learner])
+
+    def config(self, learner: str, seed: int):
+        """The run's config: the learner's file, the study's overrides, no GIF, the seed."""
+        return cfg_lib.load(self.config_file(learner), [*self.overrides, "gif=false", f"seed={seed}"])
+
+
+def parse_config_of(items) -> tuple[tuple[str, str], ...]:
+    """``--config-of LEARNER=FILE`` items as (learner, file) pairs."""
+    out = []
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or name not in LEARNERS or not path or name in dict(out):
+            raise ValueError(f"--config-of: allowed LEARNER=FILE, each learner once, with LEARNER one of "
+                             f"{', '.join(LEARNERS)}; got {item!r}")
+        out.append((name, path))
+    return tuple(out)
+
+
+def trained_on(cfg) -> str:
+    """The tasks a run of ``cfg`` learns from: its task, and the entity network's mix (``3v2+4v3``)."""
+    mix = cfg[cfg.method].get("mix", "") if cfg.method in cfg else ""
+    return "+".join([cfg.task, *[t.strip() for t in mix.split(",") if t.strip()]])
+
+
+def _resolved(cfg) -> dict:
+    """The whole config but its seed, as JSON holds it."""
+    d = json.loads(json.dumps(cfg.to_dict()))
+    d.pop("seed")
+    return d
+
+
+def check(study: Study) -> dict:
+    """Every input checked before any compute, each error naming its field and what it allows; returns the learners'
+    configs (of the first seed)."""
+    t3.check_choice("--learners", study.learners, LEARNERS)
+    if len(set(study.learners)) != len(study.learners):
+        raise ValueError(f"--learners: allowed {', '.join(LEARNERS)}, each once, got {', '.join(study.learners)}")
+    seeds = study.seeds
+    if not seeds or len(set(seeds)) != len(seeds) or any(not isinstance(s, int) or not 0 <= s < 2**31 for s in seeds):
+        raise ValueError(f"--seeds: allowed distinct integers in [0, 2**31), got {seeds!r}")
+    for name, v, low in (("--test-trials", study.test_trials, 1), ("--test-seed", study.test_seed, 0)):
+        if not isinstance(v, int) or not low <= v < 2**31:
+            raise ValueError(f"{name}: allowed an integer in [{low}, 2**31), got {v!r}")
+    parse_config_of(f"{n}={p}" for n, p in study.configs)
+    cfgs = {}
+    for learner in study.learners:
+        try:
+            cfg = study.config(learner, seeds[0])
+            cfg_lib.validate(cfg)
+        except ConfigError as e:
+            raise ConfigError(f"{learner} ({study.config_file(learner)}): {e}") from None
+        if cfg.task != SOURCE:
+            raise ValueError(f"--config-of: {learner}'s config {study.config_file(learner)} trains in {cfg.task}; the "
+                             f"study trains every learner in {SOURCE}")
+        cfgs[learner] = cfg
+    worlds = {n: c.sim.to_dict() for n, c in cfgs.items()}
+    first = next(iter(worlds))
+    other = [n for n, w in worlds.items() if w != worlds[first]]
+    if other:
+        raise ValueError(f"sim: {', '.join(other)} set another world than {first}: the study plays every champion and "
+                         "the hand-coded policies in one world")
+    return cfgs
+
+
+def world(sim_section, task: str):
+    """``(sim, sim_params)`` of ``task`` in the world of a config's ``sim`` section."""
+    c = cfg_lib.base_config()
+    c.task = task
+    c.sim.update(sim_section.to_dict())
+    exp = cfg_lib.validate(c)
+    return exp.sim, exp.sim_params
+
+
+def test_states(sim_section, test_seed: int, test_trials: int) -> dict:
+    """``{task: (sim, sim_params, starts)}``: each task's test states, as every run of the task is measured on
+    (:func:`kx.experiments.measure.held_out_states`), and the key of their kick noise (``"key"``)."""
+    from kx.evolve import streams
+    from kx.sim import env
+
+    keys = streams.test(test_seed)
+    out = {"key": keys.eval}
+    for task in TASKS:
+        sim, params = world(sim_section, task)
+        out[task] = (sim, params, env.reset_batch(keys.starts, test_trials, params, sim))
+    return out
+
+
+def play(encoding, champion, sim, params, starts, key) -> float:
+    """A champion's mean fitness on ``starts`` of the world ``sim``, unchanged (``encoding.policy_for(sim)``)."""
+    from kx.evolve.encoding import stack
+    from kx.sim import evaluate as ev
+
+    return float(ev.evaluate(encoding.policy_for(sim), encoding.policy_params(stack([champion])), starts, params, sim,
+                             key=key).fitness.mean())
+
+
+def baselines(states: dict) -> list[dict]:
+    """The hand-coded policies (:data:`kx.sim.policies.BASELINES`) on each task's test states."""
+    from kx.sim import evaluate as ev
+    from kx.sim.policies import BASELINES
+
+    return [{"policy": name, "task": task, "test_fitness": float(ev.evaluate(
+        make(states[task][0]), None, states[task][2], states[task][1], states[task][0], key=states["key"]
+    ).fitness.mean())} for name, make in BASELINES.items() for task in TASKS]
+
+
+def record(study: Study, cfgs: dict) -> dict:
+    """What ``DIR/zeroshot.json`` fixes (test states, overrides, the Table 3 folder, each learner's config)."""
+    return {"test_seed": study.test_seed, "test_trials": study.test_trials, "overrides": list(study.overrides),
+            "table3": study.table3,
+            "learners": {n: {"config": study.config_file(n), "method": c.method, "trained": trained_on(c),
+                             "resolved": _resolved(c)} for n, c in cfgs.items()}}
+
+
+def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
+    """The folder's record with ``want``'s new learners added; ``RunError`` naming what differs."""
+    diff = [f"{k}: {have.get(k)!r} there, {want[k]!r} now" for k in want if k != "learners" and have.get(k) != want[k]]
+    for n, w in want["learners"].items():
+        h = have["learners"].get(n)
+        if h is not None and h != w:
+            fields = sorted(k for k in set(cfg_lib.flatten(h["resolved"])) | set(cfg_lib.flatten(w["resolved"]))
+                            if cfg_lib.flatten(h["resolved"]).get(k) != cfg_lib.flatten(w["resolved"]).get(k))
+            diff.append(f"learners.{n}: config {h['config']} there, {w['config']} now"
+                        + (f" (fields {', '.join(fields)})" if fields else ""))
+    if diff:
+        raise RunError(f"{out} holds another zero-shot study ({'; '.join(diff)}): use another --out, or the same test "
+                       "states, overrides and configs to add runs to it; nothing was run")
+    return {**have, "learners": {**have["learners"], **want["learners"]}}
+
+
+def _row_key(row: dict) -> tuple:
+    return (row["learner"], int(row["seed"]))
+
+
+def _order(row: dict) -> tuple:
+    return (list(LEARNERS).index(row["learner"]), int(row["seed"]))
+
+
+def read_results(out: pathlib.Path) -> list[dict]:
+    return csvfile.read(pathlib.Path(out) / "results.csv", FIELDS, WHAT)
+
+
+def _finish(ledger: runner.Ledger, out: pathlib.Path) -> list[dict]:
+    """results.csv's rows in the study's order (learner, seed: a resumed run's row joins its place), as strings."""
+    ledger.finish()
+    rows = read_results(out)
+    ordered = sorted(rows, key=_order)
+    if ordered != rows:
+        csvfile.write(out / "results.csv", FIELDS, ordered)
+    return ordered
+
+
+def run(out: str | pathlib.Path, study: Study, log: Callable[[str], None] = print, batch: int = 16) -> list[dict]:
+    """Trains and measures every (learner, seed) of ``study`` not yet in ``out/results.csv``, the seeds of a learner in
+    batched groups of up to ``batch`` (1: one by one; the rows are the same but for the times); returns every row of
+    ``out/results.csv``.
+    Every input, config and the folder's record are checked before any compute."""
+    if not isinstance(batch, int) or batch < 1:
+        raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
+    out = pathlib.Path(out).absolute()
+    cfgs = check(study)
+    spec_path = out / "zeroshot.json"
+    want = record(study, cfgs)
+    have = json.loads(spec_path.read_text()) if spec_path.is_file() else None
+    merged = want if have is None else _agree(out, have, want)
+    ledger = runner.Ledger(out / "results.csv", FIELDS, WHAT, _row_key, _order, "zeroshot")
+    out.mkdir(parents=True, exist_ok=True)
+    ledger.start()
+    rows = ledger.open()
+    done = {_row_key(r) for r in rows}
+    todo = {n: [s for s in study.seeds if (n, s) not in done] for n in study.learners}
+    total, left = len(study.learners) * len(study.seeds), sum(map(len, todo.values()))
+    log(f"kx zeroshot: {total} runs, {total - left} done, {left} to run -> {out}")
+    if not left and have is not None and (out / "baselines.csv").is_file():
+        return _finish(ledger, out)
+    states = test_states(next(iter(cfgs.values())).sim, study.test_seed, study.test_trials)
+    digests = {t: design.states_digest(states[t][2]) for t in TASKS}
+    if have is not None and have.get("test_states", {}).get("sha256") != digests:
+        raise RunError(f"{spec_path}: test_states: this code draws other test states than the folder's runs were "
+                       "measured on: use another --out; nothing was run")
+    merged["test_states"] = {"stream": "kx.evolve.streams.test(seed)", "sha256": digests}
+    run_outputs.write_json(spec_path, merged)
+    if not (out / "baselines.csv").is_file():
+        base = baselines(states)
+        csvfile.write(out / "baselines.csv", BASELINE_FIELDS,
+                      [{**b, "test_trials": study.test_trials, "test_seed": study.test_seed} for b in base])
+        log("hand-coded policies: " + "; ".join(f"{b['policy']} {b['task']} {b['test_fitness']:.4f}" for b in base))
+    n_done = total - left
+    for learner in study.learners:
+        for i in range(0, len(todo[learner]), batch):
+            seeds = todo[learner][i:i + batch]
+            group = [study.config(learner, s) for s in seeds]
+            dirs = [out / "runs" / learner / f"seed{s}" for s in seeds]
+            show = lambda s: log(f"[{n_done}/{total} runs | {learner}] {' '.join(s.split()[:6])}") \
+                if s.startswith("gen ") else None  # noqa: E731
+            for cfg, seed, finished in zip(group, seeds, measure.train_and_measure(
+                    group, dirs, study.test_seed, study.test_trials, log=show)):
+                t0 = time.perf_counter()
+                enc, champion = finished.trainer.encoding, finished.state.champion
+                scores = {f"test_{t}": play(enc, champion, *states[t], states["key"]) for t in t3.TARGETS}
+                row = {"learner": learner, "config": study.config_file(learner), "seed": seed, "method": cfg.method,
+                       "trained": trained_on(cfg), "generations": cfg.generations, "episodes": t3.episodes(cfg),
+                       "max_fitness": finished.max_fitness,
+                       "champion_generation": int(finished.state.champion_generation),
+                       f"test_{SOURCE}": finished.test, **scores, "test_trials": study.test_trials,
+                       "test_seed": study.test_seed, "wall_seconds": finished.wall_seconds,
+                       "test_seconds": round(time.perf_counter() - t0, 3)}
+                ledger.append(row)
+                n_done += 1
+                log(f"[{n_done}/{total} runs | {learner} seed {seed}] " + ", ".join(
+                    f"{t} {row[f'test_{t}']:.4f}" for t in TASKS) + f" ({row['wall_seconds']:.1f} s training, "
+                    f"{row['test_seconds']:.1f} s zero-shot tests)")
+    return _finish(ledger, out)
+
+
+# ------------------------------------------------------------------------------------------------ the report
+
+def _table3_folder(rec: dict) -> pathlib.Path:
+    path = pathlib.Path(rec["table3"])
+    return path if path.is_absolute() else ROOT / path
+
+
+def trained_in_target(rec: dict) -> tuple[dict, dict]:
+    """From the recorded Table 3 folder: ``{method: {target: test_fitness of its no-transfer runs}}`` and its test
+    states' digests (``{}`` where the folder has none)."""
+    folder = _table3_folder(rec)
+    rows = t3.read_results(folder / "results.csv")
+    cells: dict = {}
+    for r in rows:
+        if r["phase"] == "target" and r["setup"] == "none":
+            cells.setdefault(r["method"], {}).setdefault(r["target"], []).append(float(r["test_fitness"]))
+    protocol = folder / "protocol.json"
+    digests = json.loads(protocol.read_text()).get("test_states", {}) if protocol.is_file() else {}
+    return {m: {t: np.asarray(v) for t, v in by.items()} for m, by in cells.items()}, digests
+
+
+def _ci(i: stats.Interval) -> str:
+    return "[—]" if np.isnan(i.low) else f"[{i.low:.3f}, {i.high:.3f}]"
+
+
+def _poi(a: np.ndarray, b: np.ndarray) -> tuple[str, stats.Interval]:
+    i = stats.improvement_interval(a, b)
+    return f"{i.value:.2f} {_ci(i)}", i
+
+
+def _command(rec: dict, by: dict) -> str:
+    parts = ["python -m kx.experiments zeroshot --out DIR", f"--learners {','.join(by)}"]
+    seeds = sorted({s for v in by.values() for s in v["seeds"]})
+    parts.append(f"--seeds {','.join(map(str, seeds))}")
+    parts += [f"--test-trials {rec['test_trials']}", f"--test-seed {rec['test_seed']}"]
+    parts += [f"--config-of {n}={v['config']}" for n, v in rec["learners"].items()
+              if n in by and v["config"] != LEARNERS[n]]
+    parts += [f"--set {o}" for o in rec["overrides"]]
+    if rec["table3"] != TABLE3:
+        parts.append(f"--table3 {rec['table3']}")
+    return " ".join(parts)
+
+
+def write_report(out: str | pathlib.Path) -> pathlib.Path:
+    """``out/report.md`` and ``out/zeroshot.png`` from ``out``'s zeroshot.json, results.csv and baselines.csv and the
+    recorded Table 3 folder's results.csv and protocol.json alone (fixed bootstrap seeds: byte for byte the same)."""
+    out = pathlib.Path(out)
+    if not (out / "zeroshot.json").is_file():
+        raise RunError(f"{out}: no zeroshot.json: not a zero-shot study's folder (python -m kx.experiments zeroshot)")
+    rec = json.loads((out / "zeroshot.json").read_text())
+    rows = read_results(out)
+    if not rows:
+        raise RunError(f"{out / 'results.csv'}: no finished runs to report")
+    base = csvfile.read(out / "baselines.csv", BASELINE_FIELDS, "kx zeroshot baselines file")
+    names = [n for n in LEARNERS if n in rec["learners"]]
+    by = {}
+    for n in names:
+        rs = sorted((r for r in rows if r["learner"] == n), key=lambda r: int(r["seed"]))
+        if rs:
+            by[n] = {"seeds": [int(r["seed"]) for r in rs], "rows": rs,
+                     **{t: np.asarray([float(r[f"test_{t}"]) for r in rs]) for t in TASKS}}
+    reference, digests = trained_in_target(rec)
+    t3_name = rec["table3"]
+    same = [t for t in TASKS if digests.get("sha256", {}).get(t) == rec["test_states"]["sha256"][t]
+            and digests.get("trials") == rec["test_trials"]]
+    states = (f"the same states as {t3_name}'s test_fitness (their sha256 digests equal, every task)"
+              if len(same) == len(TASKS) else
+              f"NOT the states of {t3_name}'s test_fitness in {', '.join(t for t in TASKS if t not in same)} (other "
+              "digests, or the folder records none): a fraction of trained-in-target there compares unlike states")
+    md = ["# Zero-shot study", "",
+          f"Generated by `python -m kx.experiments report` from this folder's `zeroshot.json`, `results.csv` and "
+          f"`baselines.csv` and {t3_name}'s `results.csv` and `protocol.json` alone. Every learner trained on {SOURCE} "
+          f"(the entity mix on {SOURCE} with 4v3 episodes in every batch); each run's validated champion played, "
+          f"unchanged, {rec['test_trials']} test states of each task (the test stream of seed {rec['test_seed']}): "
+          f"{states}. {SEEDS_ASKED} seeds a learner are asked for; n says how many ran.", "",
+          "## Zero-shot scores", "", f"IQM [95% bootstrap CI] and mean of the runs' champions; {SOURCE} is the "
+          "training task, the others zero-shot.", "",
+          "| learner | n | " + " | ".join(TASKS) + " |", "|---|---|" + "---|" * len(TASKS)]
+    for n in LEARNERS:
+        if n not in by:
+            md.append(f"| {n} | 0 | " + " | ".join("not yet run" for _ in TASKS) + " |")
+            continue
+        cells = [f"{i.value:.3f} {_ci(i)}; mean {by[n][t].mean():.3f}" for t in TASKS
+                 for i in [stats.iqm_interval(by[n][t])]]
+        flag = "" if len(by[n]["seeds"]) >= SEEDS_ASKED else f" (of {SEEDS_ASKED})"
+        md.append(f"| {n} | {len(by[n]['seeds'])}{flag} | " + " | ".join(cells) + " |")
+    policies = list(dict.fromkeys(b["policy"] for b in base))
+    for p in policies:
+        vals = {b["task"]: float(b["test_fitness"]) for b in base if b["policy"] == p}
+        md.append(f"| {p} (hand-coded) | — | " + " | ".join(f"{vals[t]:.3f}" for t in TASKS) + " |")
+    md += ["", "![zeroshot.png](zeroshot.png)", "",
+           "## As a fraction of the same learner trained in the target", "",
+           f"The zero-shot IQM divided by the IQM of the same method's no-transfer runs in {t3_name} (phase target, "
+           "setup none, test_fitness: 50 generations-equivalent from scratch in the target).", "",
+           "| learner | method | " + " | ".join(t3.TARGETS) + " |", "|---|---|" + "---|" * len(t3.TARGETS)]
+    for n in by:
+        method = by[n]["rows"][0]["method"]
+        cells = []
+        for t in t3.TARGETS:
+            ref = reference.get(method, {}).get(t)
+            if ref is None:
+                cells.append(f"not yet run ({t3_name} has no {method} none cell)")
+                continue
+            z, r = stats.iqm(by[n][t]), stats.iqm(ref)
+            cells.append(f"{z / r:.2f} ({z:.3f} / {r:.3f}, n = {ref.size})")
+        md.append(f"| {n} | {method} | " + " | ".join(cells) + " |")
+    goal = reference.get("neat", {})
+    md += ["", "## The goal to beat", ""]
+    if not all(t in goal for t in t3.TARGETS):
+        md.append(f"{t3_name} holds no NEAT no-transfer cell of every target: the goal is unknown.")
+    else:
+        md += [f"A policy trained on {SOURCE} alone that, zero-shot, matches NEAT evolved 50 generations in the target "
+               f"({t3_name}'s neat none cells, IQM: " + ", ".join(
+                   f"{t} {stats.iqm(goal[t]):.3f} (mean {goal[t].mean():.3f}, n = {goal[t].size})" for t in t3.TARGETS)
+               + "), and beats every other learner's zero-shot score with the interval of the probability of "
+               "improvement above 0.5. Reached: its zero-shot IQM at least the goal's, and every such interval above "
+               "0.5. Beside it, the probability that one of its runs beats one of NEAT's in the target.", "",
+               "| learner | n | " + " | ".join(t3.TARGETS) + " |", "|---|---|" + "---|" * len(t3.TARGETS)]
+        for n in by:
+            cells = []
+            for t in t3.TARGETS:
+                z, g = stats.iqm(by[n][t]), stats.iqm(goal[t])
+                weak = [m for m in by if m != n and not stats.improvement_interval(by[n][t], by[m][t]).low > 0.5]
+                verdict = ("**reached**" if z >= g and not weak else "not reached: " + "; ".join(
+                    ([f"IQM {z:.3f} < {g:.3f}"] if z < g else [])
+                    + ([f"P(improvement) interval not above 0.5 over {', '.join(weak)}"] if weak else [])))
+                cells.append(f"{verdict} (P(improvement) over NEAT in the target {_poi(by[n][t], goal[t])[0]})")
+            md.append(f"| {n} | {len(by[n]['seeds'])} | " + " | ".join(cells) + " |")
+    md += ["", "## Probability of improvement", "",
+           "Of the row's learner over the column's, zero-shot, per task: the probability that a run of the first beats "
+           "one of the second (ties half), with its 95% bootstrap interval (each learner's runs resampled apart).", ""]
+    for t in TASKS:
+        md += [f"**{t}**", "", "| over | " + " | ".join(by) + " |", "|---|" + "---|" * len(by)]
+        md += [f"| {a} | " + " | ".join("—" if a == b else _poi(by[a][t], by[b][t])[0] for b in by) + " |" for a in by]
+        md.append("")
+    md += ["## What was run", "", "```", _command(rec, by), "```", "",
+           "| learner | config | method | trained on | episodes a run | seeds | training s (sum, mean a run) | "
+           "zero-shot test s (sum) |", "|---|---|---|---|---|---|---|---|"]
+    for n, v in by.items():
+        rs, learner = v["rows"], rec["learners"][n]
+        wall = np.asarray([float(r["wall_seconds"]) for r in rs])
+        md.append(f"| {n} | `{learner['config']}` | {learner['method']} | {learner['trained']} | {rs[0]['episodes']} | "
+                  f"{','.join(map(str, v['seeds']))} | {wall.sum():.0f}, {wall.mean():.1f} | "
+                  f"{sum(float(r['test_seconds']) for r in rs):.0f} |")
+    md += ["", "Each learner's whole resolved config (but the seed) is in `zeroshot.json` "
+           "(`learners.<name>.resolved`); a run's seed is its seed; "
+           "its training seconds are its share of its batched group's on the machine; a learner's zero-shot test "
+           "seconds include the compilation of its first run's evaluations.", ""]
+    _plot(out, by, base, goal)
+    path = out / "report.md"
+    path.write_text("\n".join(md))
+    return path
+
+
+def _plot(out: pathlib.Path, by: dict, base: list[dict], goal: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(TASKS), figsize=(3.2 * len(TASKS), 3.4), sharey=True)
+    for ax, t in zip(axes, TASKS):
+        for k, n in enumerate(by):
+            i = stats.iqm_interval(by[n][t])
+            err = [[0.0], [0.0]] if np.isnan(i.low) else [[i.value - i.low], [i.high - i.value]]
+            ax.errorbar([k], [i.value], yerr=err, fmt="o", capsize=3, color=f"C{k}")
+        heur = [float(b["test_fitness"]) for b in base if b["policy"] == "heuristic" and b["task"] == t]
+        if heur:
+            ax.axhline(heur[0], color="grey", linestyle="--", linewidth=1, label="heuristic")
+        if t in goal:
+            ax.axhline(stats.iqm(goal[t]), color="black", linewidth=1, label="NEAT trained in target")
+        ax.set_xticks(range(len(by)), list(by), rotation=45, ha="right", fontsize=7)
+        ax.set_title(t + (" (trained)" if t == SOURCE else " (zero-shot)"), fontsize=9)
+    axes[0].set_ylabel("test fitness, IQM [95% CI]")
+    axes[-1].legend(fontsize=6, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out / "zeroshot.png", dpi=90, metadata={"Software": None})
+    plt.close(fig)

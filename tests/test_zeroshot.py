@@ -1,0 +1,175 @@
+"""The zero-shot study (kx.experiments.zeroshot): bad input refused before any compute, naming its field; a folder of
+another study refused; the report from a folder's files alone, byte for byte; a tiny study end to end (2 learners x 2
+seeds): run again it does nothing, a run killed half-way resumes to the same row, a row's target score is its champion
+played on the target's test states."""
+
+import dataclasses
+import json
+import pathlib
+import shutil
+
+import numpy as np
+import pytest
+
+from kx.evolve import config as cfg_lib
+from kx.evolve import run as run_lib
+from kx.evolve import streams
+from kx.evolve.errors import RunError
+from kx.experiments import __main__ as cli
+from kx.experiments import csvfile, measure
+from kx.experiments import zeroshot as zs
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+TINY = ("population_size=10", "generations=2", "trials=3", "validation_trials=3", "checkpoint_every=1",
+        "keep_checkpoints=5")
+
+
+@pytest.mark.parametrize("argv, want", [
+    (["--learners", "neat,sarsa"], "--learners: allowed neat, hyperneat, cma_es, ppo, ppo_entity, ppo_entity_mix"),
+    (["--seeds", "3-x"], "--seeds: allowed N, A-B"),
+    (["--test-trials", "0"], "--test-trials: allowed an integer in [1, 2**31)"),
+    (["--config-of", "sarsa=configs/ppo_3v2.py"], "--config-of: allowed LEARNER=FILE"),
+    (["--config-of", "neat=configs/neat_4v3.py"], "--config-of: neat's config configs/neat_4v3.py trains in 4v3"),
+    (["--config-of", "ppo=configs/nothing.py"], "ppo (configs/nothing.py): --config: no config file"),
+    (["--learners", "neat", "--set", "population_size=1"], "neat (configs/neat_3v2.py): population_size"),
+])
+def test_bad_input_is_refused_naming_the_field_before_any_compute(argv, want, tmp_path, capsys):
+    assert cli.main(["zeroshot", "--out", str(tmp_path / "z"), *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("python -m kx.experiments zeroshot: ") and want in err, err
+    assert not (tmp_path / "z").exists()
+
+
+def test_a_report_of_a_folder_without_a_study_is_refused(tmp_path, capsys):
+    assert cli.main(["zeroshot", "--out", str(tmp_path), "--report-only"]) == 2
+    assert "no zeroshot.json: not a zero-shot study's folder" in capsys.readouterr().err
+
+
+def test_each_learner_has_a_config_the_mix_trains_on_two_tasks_at_the_same_budget():
+    cfgs = zs.check(zs.Study())
+    assert list(cfgs) == list(zs.LEARNERS)
+    assert {n: zs.trained_on(c) for n, c in cfgs.items()} == {**{n: "3v2" for n in zs.LEARNERS},
+                                                              "ppo_entity_mix": "3v2+4v3"}
+    assert cfgs["ppo_entity_mix"].ppo_entity.mix == "4v3"
+    assert zs.t3.episodes(cfgs["ppo_entity_mix"]) == zs.t3.episodes(cfgs["ppo_entity"]) == 90_000
+    assert zs.parse_config_of(["ppo=configs/ppo_3v2_iteration.py"]) == (("ppo", "configs/ppo_3v2_iteration.py"),)
+
+
+def test_a_folder_of_another_study_is_refused_naming_what_differs(tmp_path):
+    study = zs.Study(learners=("neat", "ppo"))
+    have = zs.record(study, zs.check(study))
+    other = zs.Study(learners=("ppo", "cma_es"), configs=(("ppo", "configs/ppo_3v2_iteration.py"),))
+    with pytest.raises(RunError, match=r"learners\.ppo: config configs/ppo_3v2.py there, "
+                                       r"configs/ppo_3v2_iteration.py now \(fields .*ppo\.") as e:
+        zs._agree(tmp_path, have, zs.record(other, zs.check(other)))
+    assert "cma_es" not in str(e.value)  # a new learner joins the folder
+    with pytest.raises(RunError, match="test_trials: 1000 there, 20 now"):
+        zs._agree(tmp_path, have, zs.record(dataclasses.replace(study, test_trials=20), zs.check(study)))
+    more = zs.Study(learners=("cma_es",))
+    merged = zs._agree(tmp_path, have, zs.record(more, zs.check(more)))
+    assert list(merged["learners"]) == ["neat", "ppo", "cma_es"]
+
+
+def _synthetic_folder(out: pathlib.Path) -> None:
+    """A finished folder by hand: NEAT's champions far above the goal in 4v3, the entity policy's below."""
+    study = zs.Study(learners=("neat", "ppo_entity"))
+    rec = zs.record(study, zs.check(study))
+    rec["test_states"] = json.loads((ROOT / "docs/table3/protocol.json").read_text())["test_states"]
+    out.mkdir()
+    (out / "zeroshot.json").write_text(json.dumps(rec))
+    rng = np.random.default_rng(0)
+    rows = [{"learner": n, "config": zs.LEARNERS[n], "seed": s, "method": n, "trained": "3v2", "generations": 20,
+             "episodes": 90000, "max_fitness": 0.8, "champion_generation": 3, "test_trials": 1000, "test_seed": 0,
+             "wall_seconds": 10.0, "test_seconds": 1.0,
+             **{f"test_{t}": float(base + 0.01 * rng.random()) for t in zs.TASKS}}
+            for n, base in (("neat", 0.6), ("ppo_entity", 0.1)) for s in range(10)]
+    csvfile.write(out / "results.csv", zs.FIELDS, rows)
+    csvfile.write(out / "baselines.csv", zs.BASELINE_FIELDS,
+                  [{"policy": "heuristic", "task": t, "test_fitness": 0.2, "test_trials": 1000, "test_seed": 0}
+                   for t in zs.TASKS])
+
+
+def test_the_report_reads_the_folder_alone_byte_for_byte_with_its_verdicts(tmp_path):
+    _synthetic_folder(tmp_path / "a")
+    text = zs.write_report(tmp_path / "a").read_text()
+    shutil.copytree(tmp_path / "a", tmp_path / "b")
+    for argv in (["report", str(tmp_path / "b")], ["zeroshot", "--out", str(tmp_path / "b"), "--report-only"]):
+        for f in ("report.md", "zeroshot.png"):
+            (tmp_path / "b" / f).unlink()
+        assert cli.main(argv) == 0
+        for f in ("report.md", "zeroshot.png"):
+            assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes()
+    assert "the same states as docs/table3's test_fitness" in text
+    assert "| hyperneat | 0 | not yet run |" in text
+    rows = {line.split(" | ")[0]: line for line in text.splitlines() if line.startswith("| ")}
+    assert "not yet run (docs/table3 has no ppo_entity none cell)" in text
+    assert "0.309" in text and "0.399" in text and "0.201" in text  # the goal: docs/table3's NEAT none IQMs
+    goal = text.split("## The goal to beat")[1].split("## Probability")[0]
+    neat, entity = (line for line in goal.splitlines() if line.startswith(("| neat", "| ppo_entity")))
+    assert neat.count("**reached**") == 3 and "reached**" not in entity and "IQM 0.10" in entity
+    assert rows["| heuristic (hand-coded)"].endswith("| 0.200 | 0.200 | 0.200 | 0.200 |")
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    """A tiny study, 2 learners x 2 seeds, run once for the slow tests."""
+    out = tmp_path_factory.mktemp("zs") / "tiny"
+    study = zs.Study(learners=("neat", "cma_es"), seeds=(0, 1), test_trials=20, overrides=TINY)
+    rows = zs.run(out, study, log=lambda s: None)
+    zs.write_report(out)
+    return out, study, rows
+
+
+FIXED = [f for f in zs.FIELDS if f not in ("wall_seconds", "test_seconds")]
+
+
+@pytest.mark.slow  # ~60 s under a cold cache: two learners trained, every task's evaluator compiled
+def test_a_tiny_study_runs_once_and_again_does_nothing(tiny, monkeypatch):
+    out, study, rows = tiny
+    assert [(r["learner"], int(r["seed"])) for r in rows] == [("neat", 0), ("neat", 1), ("cma_es", 0), ("cma_es", 1)]
+    assert all(0 <= float(r[f"test_{t}"]) <= 1 for r in rows for t in zs.TASKS)
+    assert (out / "report.md").is_file() and (out / "zeroshot.png").stat().st_size > 1000
+    before = {f: (out / f).read_bytes() for f in ("results.csv", "baselines.csv", "zeroshot.json")}
+    monkeypatch.setattr(measure, "train_and_measure", lambda *a, **k: pytest.fail("trained again"))
+    lines = []
+    assert zs.run(out, study, log=lines.append) == zs.read_results(out)
+    assert lines == [f"kx zeroshot: 4 runs, 4 done, 0 to run -> {out}"]
+    assert {f: (out / f).read_bytes() for f in before} == before
+    report = {f: (out / f).read_bytes() for f in ("report.md", "zeroshot.png")}
+    zs.write_report(out)
+    assert {f: (out / f).read_bytes() for f in report} == report
+    assert "| neat | 2 (of 10) |" in report["report.md"].decode() and "not yet run" in report["report.md"].decode()
+
+
+@pytest.mark.slow
+def test_a_run_killed_half_way_resumes_to_the_same_row(tiny, tmp_path):
+    out, study, rows = tiny
+    shutil.copytree(out, tmp_path / "k")
+    k = tmp_path / "k"
+    csvfile.write(k / "results.csv", zs.FIELDS, [r for r in rows if (r["learner"], r["seed"]) != ("neat", "1")])
+    run = k / "runs" / "neat" / "seed1"  # killed during its second generation: its first one's checkpoint left
+    shutil.rmtree(run / "checkpoints" / "2")
+    metrics = (run / "metrics.csv").read_text().splitlines(keepends=True)
+    (run / "metrics.csv").write_text("".join(metrics[:2]))
+    assert not measure.finished(run, 2) and measure.started(run)
+    lines = []
+    again = zs.run(k, study, log=lines.append)
+    assert lines[0] == f"kx zeroshot: 4 runs, 3 done, 1 to run -> {k}"
+    assert [{f: r[f] for f in FIXED} for r in again] == [{f: r[f] for f in FIXED} for r in rows]
+    assert (k / "baselines.csv").read_bytes() == (out / "baselines.csv").read_bytes()
+
+
+@pytest.mark.slow
+def test_a_rows_scores_are_its_champion_played_on_each_tasks_test_states(tiny):
+    """4v3 by hand: the champion of the run directory in a 4v3 trainer of its own method (Table 3's measure of a target
+    run), on the 4v3 test states of the same seed; 3v2 likewise in its own trainer (results.csv holds 9 digits)."""
+    out, study, rows = tiny
+    row = next(r for r in rows if (r["learner"], r["seed"]) == ("cma_es", "1"))
+    trainer, _, state, _ = run_lib.restore(out / "runs" / "cma_es" / "seed1")
+    keys = streams.test(study.test_seed)
+    assert measure.fitness_on(trainer, state.champion, measure.held_out_states(trainer, keys, 20),
+                              keys.eval) == pytest.approx(float(row["test_3v2"]), rel=1e-8)
+    target = run_lib.Trainer(cfg_lib.load("configs/cma_es_3v2.py", [*TINY, "task=4v3", "gif=false", "seed=1"]))
+    assert target.exp.sim.name == "4v3"
+    assert measure.fitness_on(target, state.champion, measure.held_out_states(target, keys, 20),
+                              keys.eval) == pytest.approx(float(row["test_4v3"]), rel=1e-8)
