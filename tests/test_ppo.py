@@ -261,3 +261,22 @@ def test_the_evaluators_greedy_decision_is_the_trained_networks(hidden):
         expect = observe.decode_ranked(jnp.asarray(want).T, states, sim)
         np.testing.assert_array_equal(np.asarray(acts)[clear], np.asarray(expect)[clear])
         assert len(set(np.asarray(jnp.argmax(want, axis=-1)).tolist())) > 1  # more than one action taken
+
+
+def test_the_rollouts_sampler_draws_the_softmaxs_actions_and_never_an_absent_teammate():
+    """``sample`` inverts the softmax's CDF: hand-computed cut points, the categorical's frequencies over many
+    uniforms, and a slot of probability zero (an absent teammate's :data:`ppo.ABSENT` logit) never drawn, even
+    at the largest uniform below 1."""
+    third = jnp.zeros(3)  # three equal actions: cuts at 1/3 and 2/3
+    u = jnp.array([0.0, 0.33, 0.34, 0.66, 0.67, np.nextafter(np.float32(1), np.float32(0))], jnp.float32)
+    np.testing.assert_array_equal(ppo.sample(jnp.broadcast_to(third, (6, 3)), u), [0, 0, 1, 1, 2, 2])
+    logits = jnp.array([0.5, -1.0, 1.5, 0.0])
+    draws = ppo.sample(jnp.broadcast_to(logits, (200_000, 4)), jax.random.uniform(jax.random.key(3), (200_000,)))
+    p = np.asarray(jax.nn.softmax(logits))
+    freq = np.bincount(np.asarray(draws), minlength=4) / draws.size
+    assert np.all(np.abs(freq - p) < 4 * np.sqrt(p * (1 - p) / draws.size)), (freq, p)
+    absent = jnp.array([[0.3, 2.0, ppo.ABSENT, ppo.ABSENT], [ppo.ABSENT, 1.0, ppo.ABSENT, 5.0]])
+    top = np.nextafter(np.float32(1), np.float32(0))
+    for uu in (0.0, 0.5, 0.999, top):
+        a = np.asarray(ppo.sample(absent, jnp.full((2,), uu, jnp.float32)))
+        assert a[0] in (0, 1) and a[1] in (1, 3), (uu, a)

@@ -279,6 +279,17 @@ def actor_logits_batch_last(params, x):
     return x
 
 
+def sample(logits: jax.Array, u: jax.Array) -> jax.Array:
+    """Actions drawn from the softmax of ``logits [..., A]`` by inverting its CDF at uniforms ``u [...]`` in
+    [0, 1): action ``a`` when ``c[a-1] <= u * c[A-1] < c[a]`` (``c`` the probabilities' running sum), the
+    categorical's distribution. The rollout draws a whole rollout's uniforms in one call: drawing a key's
+    Gumbel noise every step (``jax.random.categorical``) cost about 0.14 us an episode-iteration of 0.95 at 512
+    episodes (2026-12-06). An action of probability zero is never drawn (an absent teammate's slot:
+    :data:`ABSENT`), since its running sum equals the one before it, and ``u * c[A-1] < c[A-1]``."""
+    c = jnp.cumsum(jax.nn.softmax(logits), axis=-1)
+    return (c[..., :-1] <= (u * c[..., -1])[..., None]).sum(-1, dtype=jnp.int32)
+
+
 class Transition(NamedTuple):
     obs: jax.Array
     action: jax.Array
@@ -430,11 +441,11 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
 
     iterating = cfg.rollout == "iteration"
 
-    def env_step(carry, key):
+    def env_step(carry, xs):
         learner, ended, return_sum, shared, iterations = carry
-        k_act, k_env = jax.random.split(key)
+        k_env, u = xs
         logits, value = net.apply(learner.params, learner.obs)
-        action = jax.random.categorical(k_act, logits)
+        action = sample(logits, u)
         log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
         valid = _deciding(env, learner.env) if iterating else None
         obs2, env_state, reward, done, info = _step(k_env, cfg, env, learner.env, action, env_params,
@@ -447,8 +458,10 @@ def make_rollout(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams):
 
     def rollout(learner, key):
         zero = jnp.zeros((), jnp.int32)
+        k_env, k_act = jax.random.split(key)  # the actions' uniforms drawn at once: one call, not one a step
         return jax.lax.scan(env_step, (learner, zero, jnp.zeros((), jnp.float32), zero, zero),
-                            jax.random.split(key, cfg.num_steps))
+                            (jax.random.split(k_env, cfg.num_steps),
+                             jax.random.uniform(k_act, (cfg.num_steps, cfg.num_envs))))
 
     return rollout
 
