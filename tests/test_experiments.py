@@ -280,8 +280,9 @@ def test_a_comparison_inside_the_margin_is_no_meaningful_difference_and_a_wide_o
 def test_every_run_of_the_full_protocol_has_its_own_seed_and_transfer_runs_their_own_source():
     specs = t3.plan(runs=20)
     sources = [s for s in specs if s.phase == "source"]
-    # 20 x (NEAT, HyperNEAT: 2 sources + 3 targets x 4 setups; CMA-ES, PPO: 1 source + 3 targets x 2 setups)
-    assert len(specs) == 20 * (2 * 14 + 2 * 7) and len(sources) == 20 * 6
+    # 20 x (NEAT, HyperNEAT: 2 sources + 3 targets x 4 setups; CMA-ES, PPO, PPO entity: 1 source + 3 targets x 2
+    # setups)
+    assert len(specs) == 20 * (2 * 14 + 3 * 7) and len(sources) == 20 * 7
     seeds = [t3.run_seed(0, *s.key) for s in specs]
     assert len(set(seeds)) == len(seeds)
     assert not set(seeds) & {t3.run_seed(1, *s.key) for s in specs}  # another protocol seed: other runs
@@ -742,8 +743,9 @@ def test_the_full_protocol_estimate_costs_every_run_of_the_plan_at_its_cells_mea
     # per run index: NEAT 2 sources (fitness, hybrid) and 3 targets x 4 setups, HyperNEAT the same,
     # CMA-ES 1 source and 3 x 2 targets; HyperNEAT's 6v4 costed at its targets' mean (50)
     assert seconds == 2 * 10 + 12 * 20 + 2 * 30 + 4 * 40 + 4 * 60 + 4 * 50 + 5
-    assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target", "PPO source", "PPO target"}
-    assert ("left out, with no runs here: CMA-ES target, PPO source, PPO target"
+    assert borrowed == {"5v3", "6v4"} and missing == {"CMA-ES target", "PPO source", "PPO target",
+                                                      "PPO entity source", "PPO entity target"}
+    assert ("left out, with no runs here: CMA-ES target, PPO entity source, PPO entity target, PPO source, PPO target"
             in planning.full_protocol_estimate(rows, runs=1))
 
 
@@ -778,15 +780,17 @@ def test_still_to_run_lists_each_short_cell_with_its_missing_runs_and_their_cost
 
 def test_the_finished_protocol_is_short_only_of_ppo_whose_runs_are_not_costed():
     """docs/results/protocol_full: every cell of NEAT, HyperNEAT and CMA-ES at 20 runs; what the report lists still
-    to run is PPO's 7 cells, with no run of PPO to cost them by, and it says so rather than "0.0 hours"."""
+    to run is PPO's 7 cells on each network, with no run of PPO to cost them by, and it says so rather than "0.0
+    hours"."""
     committed = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "protocol_full"
     rows = t3.read_results(committed / "results.csv")
     assert len(rows) == len(t3.plan(("neat", "hyperneat", "cma_es"), runs=design.RUNS_PER_CELL)) == 700
     cells = planning.still_to_run(rows)
-    assert {c["method"] for c in cells} == {"ppo"} and [c["missing"] for c in cells] == [20] * 7
+    assert {c["method"] for c in cells} == {"ppo", "ppo_entity"} and [c["missing"] for c in cells] == [20] * 14
     text = "\n".join(report._still_to_run(rows))
-    assert "In all 140 runs, none of them costed (no run of their method's phase here)." in text
+    assert "In all 280 runs, none of them costed (no run of their method's phase here)." in text
     assert "hours**" not in text and "--methods ppo --targets 4v3,5v3,6v4" in text
+    assert "--methods ppo_entity --targets 4v3,5v3,6v4" in text
 
 
 def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_claims_they_enter():
@@ -816,21 +820,22 @@ def test_the_report_names_the_cells_extended_past_the_protocols_runs_and_the_cla
 
 
 def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_path):
-    """A folder whose design predates a secondary claim (PPO's transfer) gains it while the folder has no run
-    of its cells (it is still fixed before its runs); with such a run, or with any other difference, the
-    folder is refused."""
+    """A folder whose design predates secondary claims (PPO's transfer on either network) gains them while the
+    folder has no run of their cells (they are still fixed before their runs); with such a run, or with any other
+    difference, the folder is refused."""
     protocol = t3.Protocol(seed=3, test_trials=4, overrides=SMALL)
     ppo_claim = "ppo/fitness > ppo/none"
     older = design.design()
-    assert older[design.SECONDARY_KEY][-1] == ppo_claim
-    older[design.SECONDARY_KEY] = older[design.SECONDARY_KEY][:-1]
+    assert older[design.SECONDARY_KEY][-2:] == [ppo_claim, "ppo_entity/fitness > ppo_entity/none"]
+    older[design.SECONDARY_KEY] = older[design.SECONDARY_KEY][:-2]
     out = tmp_path / "t3"
     out.mkdir()
     (out / "protocol.json").write_text(json.dumps({**protocol.to_json(), "design": older}))
     lines = []
     design.check_folder(out, protocol, ("3v2",), lines.append)
     assert json.loads((out / "protocol.json").read_text())["design"] == design.design()
-    assert any(f"the exploratory claims {ppo_claim} (no run of theirs yet)" in ln for ln in lines), lines
+    assert any(f"the exploratory claims {ppo_claim}, ppo_entity/fitness > ppo_entity/none (no run of theirs yet)"
+               in ln for ln in lines), lines
     # a run of one of its cells exists: the claim would not be fixed before its runs
     (out / "protocol.json").write_text(json.dumps({**protocol.to_json(), "design": older}))
     csvfile.write(out / "results.csv", t3.FIELDS, [{f: "" for f in t3.FIELDS} | {
@@ -846,46 +851,73 @@ def test_a_recorded_design_gains_exploratory_claims_only_before_their_runs(tmp_p
         design.check_folder(out, protocol, ("3v2",), lines.append)
 
 
-def test_the_protocols_ppo_runs_learn_from_neats_episodes(tmp_path):
-    """PPO's runs (a population of one network; the protocol's population_size override is not theirs) have
-    NEAT's generations, each of NEAT's population x trials training episodes, and the learning rate
+@pytest.mark.parametrize("method", ["ppo", "ppo_entity"])
+def test_the_protocols_ppo_runs_learn_from_neats_episodes(tmp_path, method):
+    """PPO's runs, on either network (a population of one network; the protocol's population_size override is not
+    theirs) have NEAT's generations, each of NEAT's population x trials training episodes, and the learning rate
     annealed over the run's budget; their results rows count those episodes, source and target alike."""
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=3, overrides=SMALL)
     for phase, setup, task, gens in (("source", "fitness", "3v2", 2), ("target", "fitness", "4v3", 3)):
-        ppo = t3.config(protocol, t3.RunSpec("ppo", setup, phase, task, 0), tmp_path)
+        ppo = t3.config(protocol, t3.RunSpec(method, setup, phase, task, 0), tmp_path)
         neat = t3.config(protocol, t3.RunSpec("neat", setup, phase, task, 0), tmp_path)
-        assert (ppo.population_size, ppo.generations, ppo.ppo.episodes_per_generation) == (1, gens, 12 * 2)
-        assert ppo.ppo.anneal_episodes == gens * 24 and t3.episodes(ppo) == t3.episodes(neat) == gens * 24
-    row = t3.planned(protocol, t3.RunSpec("ppo", "fitness", "target", "4v3", 0), tmp_path)
+        assert (ppo.method, ppo.population_size, ppo.generations) == (method, 1, gens)
+        assert ppo[method].episodes_per_generation == 12 * 2
+        assert ppo[method].anneal_episodes == gens * 24 and t3.episodes(ppo) == t3.episodes(neat) == gens * 24
+    row = t3.planned(protocol, t3.RunSpec(method, "fitness", "target", "4v3", 0), tmp_path)
     assert (row["episodes"], row["source_episodes"], row["population"]) == (72, 48, 1)
     assert t3.METHOD_SETUPS["ppo"] == ("none", "fitness")
 
 
-@pytest.mark.slow  # ~60 s: two PPO sources and four targets
-def test_a_tiny_ppo_protocol_runs_its_sources_and_targets_and_reports_neats_episodes(tmp_path):
-    """PPO's cells run end to end through the protocol in batched groups (sources, then targets from their
-    weights); their rows and the report count NEAT's episodes (a generation is a training block of
-    population x trials episodes, not PPO's population of one x trials), and its claim is in the
+@pytest.mark.slow  # ~60 s a method: two PPO sources and four targets
+@pytest.mark.parametrize("method", ["ppo", "ppo_entity"])
+def test_a_tiny_ppo_protocol_runs_its_sources_and_targets_and_reports_neats_episodes(tmp_path, method):
+    """PPO's cells, on either network, run end to end through the protocol in batched groups (sources, then
+    targets from their weights); their rows and the report count NEAT's episodes (a generation is a training block
+    of population x trials episodes, not PPO's population of one x trials), and its claim is in the
     secondary family."""
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
-    rows = t3.run(tmp_path / "t3", protocol, t3.plan(("ppo",), ("4v3",), ("none", "fitness"), runs=2),
+    rows = t3.run(tmp_path / "t3", protocol, t3.plan((method,), ("4v3",), ("none", "fitness"), runs=2),
                   log=lambda s: None, batch=2)
+    name = t3.METHOD_NAMES[method]
     assert sorted((r["setup"], r["phase"], int(r["run"])) for r in rows) == [
         ("fitness", "source", 0), ("fitness", "source", 1), ("fitness", "target", 0), ("fitness", "target", 1),
         ("none", "target", 0), ("none", "target", 1)]
     for r in rows:
-        assert (r["method"], int(r["population"]), int(r["episodes"])) == ("ppo", 1, 2 * 24)
+        assert (r["method"], int(r["population"]), int(r["episodes"])) == (method, 1, 2 * 24)
         assert int(r["source_episodes"]) == (48 if r["setup"] == "fitness" and r["phase"] == "target" else 0)
         assert 0.0 <= float(r["test_fitness"]) <= 1.0 and len(t3.curve(r, "best_so_far")) == 2
     md = report.write(tmp_path / "t3").read_text()
-    assert "- PPO source: 2 x 24 training episodes = 48 episodes" in md
-    assert "- PPO target: 2 x 24 training episodes = 48 episodes" in md
+    assert f"- {name} source: 2 x 24 training episodes = 48 episodes" in md
+    assert f"- {name} target: 2 x 24 training episodes = 48 episodes" in md
     eff = {(m, s): (g, ev) for m, t, s, _, g, ev, *_ in report.efficiency(rows)}
-    g, ev = eff[("ppo", "none")]
+    g, ev = eff[(method, "none")]
     assert g in (1, 2) and ev == g * 24  # the no-transfer mean reaches its own final level by its end
-    g, ev = eff[("ppo", "fitness")]
+    g, ev = eff[(method, "fitness")]
     assert g is None or ev == g * 24 + 48
-    assert re.search(r"\| PPO 4v3: Fitness transfer vs No transfer \| 2, 2 \|", md)
+    assert re.search(rf"\| {name} 4v3: Fitness transfer vs No transfer \| 2, 2 \|", md)
+
+
+def test_a_folder_is_decided_by_the_families_its_design_recorded():
+    """A claim this code adds to the secondary family (the entity policy's transfer) changes no Holm correction of a
+    folder whose recorded design lacks it: its families are the recorded keys, in their order; with the claim
+    recorded, the family is one larger and a claim without runs counts with p = 1."""
+    today = design.design()
+    recorded = {**today, design.SECONDARY_KEY: [k for k in today[design.SECONDARY_KEY]
+                                                if not k.startswith("ppo_entity/")]}
+    primary, secondary = design.families(recorded)
+    assert [c.key for c in primary] == today["primary"] and len(secondary) == len(today[design.SECONDARY_KEY]) - 1
+    old_names = {**recorded, design.SECONDARY_KEY: [k.replace("hybrid", "novelty") for k in recorded[
+        design.SECONDARY_KEY]]}
+    assert design.families(old_names) == (primary, secondary)  # a folder written under the old setup names
+    rng = np.random.default_rng(5)
+    cells = {(m, s, t): rng.normal(mu, 0.05, 20) for t in t3.TARGETS
+             for m, s, mu in (("cma_es", "none", 0.3), ("cma_es", "fitness", 0.36))}
+    claim = "cma_es/fitness > cma_es/none"
+    by = {n: next(r for r in report.pooled_tests(_as_runs(cells), d, power=False) if r["claim"].key == claim)
+          for n, d in (("recorded", recorded), ("today", today))}
+    assert by["recorded"]["seq_p"] == by["today"]["seq_p"] < 0.01
+    assert by["recorded"]["holm"] == pytest.approx(len(secondary) * by["recorded"]["seq_p"])
+    assert by["today"]["holm"] == pytest.approx((len(secondary) + 1) * by["today"]["seq_p"])
 
 
 def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():

@@ -50,7 +50,7 @@ POWER_RUNS = (5, 10, 15, 20, 25, 30, 35, 40, 50, 60, 80, 100)
 #: the measures, each its own families
 MEASURES = ("max_fitness", "test_fitness")
 #: the methods whose shipped configs (configs/<method>_<task>.py) the protocol runs
-METHOD_CONFIGS = ("neat", "hyperneat", "cma_es", "ppo")
+METHOD_CONFIGS = ("neat", "hyperneat", "cma_es", "ppo", "ppo_entity")
 #: runs a cell the protocol aims at, and up to how many a cell may be extended where power asks for it
 RUNS_PER_CELL, EXTEND_UP_TO = 20, 35
 
@@ -81,8 +81,17 @@ SECONDARY = (
     Claim("secondary", "hyperneat", ("hyperneat", "none_hybrid"), ("neat", "none_hybrid")),
     Claim("secondary", "transfer", ("cma_es", "fitness"), ("cma_es", "none")),
     Claim("secondary", "transfer", ("ppo", "fitness"), ("ppo", "none")),
+    Claim("secondary", "transfer", ("ppo_entity", "fitness"), ("ppo_entity", "none")),
 )
 CLAIMS = PRIMARY + SECONDARY
+def families(dsg: dict) -> tuple[tuple[Claim, ...], tuple[Claim, ...]]:
+    """The primary and secondary families a recorded design fixes (its claim keys, in its order): a folder is
+    decided by the claims it recorded before its runs, so that a claim this code adds later (about cells the folder
+    has no runs of) changes no Holm correction of a folder that does not record it."""
+    by_key = {c.key: c for c in CLAIMS}
+    return tuple(tuple(by_key[k] for k in renamed(dsg[key])) for key in ("primary", SECONDARY_KEY))
+
+
 #: the paper's claims, as the report words them
 TITLES = {"transfer": "Policy transfer beats evolving from scratch",
           "hybrid": "Hybrid transfer (the paper's Fitness + NS) beats fitness transfer",

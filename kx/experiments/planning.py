@@ -51,7 +51,8 @@ def full_protocol_estimate(rows: list[dict], runs: int = 20) -> str:
     """:func:`full_protocol_seconds` as the report's sentence."""
     total, borrowed, missing = full_protocol_seconds(rows, runs)
     text = (f"The full protocol ({len(t3.plan(runs=runs))} runs: {runs} a cell, targets {', '.join(t3.TARGETS)}, "
-            f"every setup, CMA-ES's and PPO's two) at these mean wall times per run: **{total / 3600:.1f} hours** "
+            f"every setup of NEAT and HyperNEAT, the two of CMA-ES and of PPO on each network) at these mean wall "
+            f"times per run: **{total / 3600:.1f} hours** "
             "one after another on this machine")
     if borrowed:
         text += (f"; a method's targets with no runs of it here ({', '.join(sorted(borrowed, key=t3.TARGETS.index))}"

@@ -230,8 +230,8 @@ def _exploratory_sets(runs, claim, targets, dsg):
 
 
 def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> list[dict]:
-    """Every claim of :data:`kx.experiments.design.CLAIMS` with runs in both its cells in some target, under the
-    design ``dsg`` (default: the exploratory design with shared sources): the pooled test at each look the
+    """Every claim of the families the design ``dsg`` records (:func:`kx.experiments.design.families`; default: the
+    exploratory design with shared sources) with runs in both its cells in some target: the pooled test at each look the
     comparison had (:func:`stats.clustered_van_elteren`, clusters the runs that share a source), its sequential
     p-value under the plan's looks (:func:`sequential.sequential_p`), Holm's correction over its whole family as the
     design fixes it (a claim without runs yet counts with p = 1, so a partial folder is corrected as the whole
@@ -242,7 +242,7 @@ def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> lis
     dsg = dsg or design.design()
     margin = dsg["margin"]
     out = []
-    for claims in (design.PRIMARY, design.SECONDARY):
+    for claims in design.families(dsg):
         fam = []
         for claim, targets in _with_runs(runs, claims):
             if dsg["looks"] == "planned":
@@ -276,11 +276,12 @@ def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> lis
     return out
 
 
-def first_kind_verdicts(runs: dict) -> dict:
+def first_kind_verdicts(runs: dict, dsg: dict | None = None) -> dict:
     """The verdicts of the first design (van Elteren's test with independent strata, one look at every run, no
-    margin), ``{claim key: (verdict, Holm p)}``: what the report said before the correction."""
+    margin) over the families of ``dsg`` (default: today's), ``{claim key: (verdict, Holm p)}``: what the report said
+    before the correction."""
     out = {}
-    for claims in (design.PRIMARY, design.SECONDARY):
+    for claims in design.families(dsg or design.design()):
         fam = []
         for claim, targets in _with_runs(runs, claims):
             vals = [[np.asarray([v for _, v in sorted(runs[(*c, t)].items())]) for t in targets]
@@ -296,7 +297,7 @@ def first_kind_verdicts(runs: dict) -> dict:
 def _changes(runs: dict, results: list[dict], dsg: dict) -> list[str]:
     """The verdicts the corrected design changes against the first one's, each with the step that changes it:
     the clustered test alone (one look, no margin), then the looks paid for, then the margin."""
-    old = first_kind_verdicts(runs)
+    old = first_kind_verdicts(runs, dsg)
     one_look = pooled_tests(runs, {**dsg, "looks": "planned", "margin": [0.5, 0.5]}, power=False)
     looks = pooled_tests(runs, {**dsg, "margin": [0.5, 0.5]}, power=False)
     steps = {r["claim"].key: r for r in one_look}, {r["claim"].key: r for r in looks}

@@ -13,8 +13,9 @@ For each method and run index ``i``:
   transfer (the paper's Fitness + NS: seeded with hybrid source ``i``, the hybrid in the target too); and, beyond the
   paper, no transfer with the hybrid. CMA-ES (:data:`METHOD_SETUPS`) has no transfer and the transfer of
   its source's mean and step size, with generations scaled so that its budget in evaluations equals
-  NEAT's; PPO has no transfer and the transfer of its source's final weights, NEAT's generations of
-  NEAT's episodes each (``ppo.episodes_per_generation`` = NEAT's population x trials).
+  NEAT's; PPO (on the fixed layout, ``ppo``, and on the size-invariant entity network, ``ppo_entity``) has no
+  transfer and the transfer of its source's final weights, NEAT's generations of NEAT's episodes each
+  (``episodes_per_generation`` = NEAT's population x trials).
 
 Every run has its own seed (:func:`run_seed`), its own run directory under ``DIR/runs`` (resumed from its
 checkpoint if the protocol was killed), and, once finished, one row in ``DIR/results.csv``
@@ -49,8 +50,9 @@ from kx.evolve.errors import RunError
 from kx.experiments import csvfile, design, measure, processes, runner
 from kx.experiments import progress as progress_lib
 
-METHODS = ("neat", "hyperneat", "cma_es", "ppo")
-METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES", "ppo": "PPO"}  # as reports print them
+METHODS = ("neat", "hyperneat", "cma_es", "ppo", "ppo_entity")
+METHOD_NAMES = {"neat": "NEAT", "hyperneat": "HyperNEAT", "cma_es": "CMA-ES", "ppo": "PPO",
+                "ppo_entity": "PPO entity"}  # as reports print them
 SOURCES = ("shared", "per_target")
 SOURCE_TASK = "3v2"
 TARGETS = ("4v3", "5v3", "6v4")
@@ -73,9 +75,10 @@ SETUPS = {
 #: as one written now (results.csv, protocol.json's design, the run directories), and its runs keep their seeds
 OLD_SETUPS = {"novelty": "hybrid", "none_novelty": "none_hybrid"}
 ALIASES = {"setup": OLD_SETUPS}
-#: the setups each method runs (CMA-ES, the standard optimiser, and PPO, the gradient-based learner: fitness only)
+#: the setups each method runs (CMA-ES, the standard optimiser, and PPO on either network, the gradient-based learners:
+#: fitness only)
 METHOD_SETUPS = {"neat": tuple(SETUPS), "hyperneat": tuple(SETUPS), "cma_es": ("none", "fitness"),
-                 "ppo": ("none", "fitness")}
+                 "ppo": ("none", "fitness"), "ppo_entity": ("none", "fitness")}
 
 #: results.csv's columns, one row per finished run (source runs too: phase "source", target "3v2")
 FIELDS = ("method", "setup", "phase", "target", "run", "seed", "source_seed", "objective", "population", "trials",
@@ -227,8 +230,9 @@ def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collectio
         cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"{spec.method}_{spec.target}.py", over)
         ref = cfg_lib.load(cfg_lib.CONFIG_DIR / "neat_3v2.py", list(protocol.overrides))
         cfg.generations = generations
-        cfg.ppo.episodes_per_generation = ref.population_size * ref.trials
-        cfg.ppo.anneal_episodes = generations * cfg.ppo.episodes_per_generation
+        section = cfg[spec.method]
+        section.episodes_per_generation = ref.population_size * ref.trials
+        section.anneal_episodes = generations * section.episodes_per_generation
     else:
         cfg = cfg_lib.load(cfg_lib.CONFIG_DIR / f"{spec.method}_{spec.target}.py", over)
         budget = generations * _reference_population(protocol)
@@ -237,8 +241,9 @@ def config(protocol: Protocol, spec: RunSpec, out: pathlib.Path) -> ml_collectio
     return cfg
 
 
-#: the methods that train one network (PPO): the protocol's ``population_size`` override is not theirs
-ONE_NETWORK = ("ppo",)
+#: the methods that train one network (PPO on the fixed layout, PPO on the entity network): the protocol's
+#: ``population_size`` override is not theirs
+ONE_NETWORK = ("ppo", "ppo_entity")
 
 
 def episodes(cfg: ml_collections.ConfigDict) -> int:
