@@ -10,6 +10,13 @@ its own update). Each setting's episodes are first played 30 rollouts on from fr
 so that they are as long as training's late episodes; then every setting's update (learning rate 0: the same
 episodes each time) and the base's rollout alone are timed in turn, 7 rounds, and the medians printed in
 milliseconds and in microseconds per decision.
+
+    python scripts/ppo_update_parts.py RUN_DIR "rollout='iteration',num_envs=512,num_steps=16,resets=32" --parts
+
+``--parts`` then times the base's rollout built up part by part over 64 world iterations of its episodes (the
+world's transition alone; with the fixed observation; with the actor-critic's forward pass and the decision,
+greedy, sampled with ``jax.random.categorical`` and sampled as the rollout samples, :func:`ppo.sample`; the rollout
+itself), in microseconds per episode-iteration.
 """
 
 import argparse
@@ -31,6 +38,7 @@ def main(argv=None):
     p.add_argument("run_dir", help="a 3v2 ppo run directory (its validated champion plays)")
     p.add_argument("base", help="the base setting: PPOConfig fields, e.g. \"rollout='iteration',num_envs=512\"")
     p.add_argument("variants", nargs="*", help="settings, each changing the base")
+    p.add_argument("--parts", action="store_true", help="also time the base's rollout part by part")
     args = p.parse_args(argv)
     run_dir, base, variants = args.run_dir, args.base, args.variants
     cfg_run = cfg_lib.read_run_config(pathlib.Path(run_dir) / "config.json")
@@ -86,6 +94,52 @@ def main(argv=None):
             n = decisions
         m = float(np.median(v))
         print(f"{m * 1e3:7.2f} ms  {m / n * 1e6:5.2f} us/decision  {k}")
+    if args.parts:
+        rollout_parts(cfg, env, sim, sim_params, learner)
+
+
+def rollout_parts(cfg, env, sim, sim_params, learner, steps: int = 64):
+    """The rollout of ``cfg`` built up part by part on ``learner``'s episodes (those at a decision act, the others
+    fly; an ended episode stays as it is), medians of 7 timings in microseconds per episode-iteration."""
+    from kx.sim import env as world_lib
+    from kx.sim import observe
+
+    s_max = world_lib.noise_limit(sim_params.kick_noise_deg)
+    net, params, word = ppo.network(cfg), learner.params, learner.env.noise_word
+
+    def loop(decide, observe_it=True):
+        def body(w, xs):
+            k, u = xs
+            if decide is None:
+                keeper, out = jnp.where(w.holder >= 0, w.holder, -1), 0.0
+            else:
+                logits, value = net.apply(params, jnp.moveaxis(observe.fixed_obs(w, sim), 0, -1))
+                keeper, out = env.keeper_of(type(learner.env)(world=w, noise_word=word), decide(logits, k, u)), value
+            w2 = world_lib.transition(w, keeper, world_lib.kick_noise(word, w.t, s_max), sim_params, sim)
+            w2 = jax.tree.map(lambda new, old, d=w.done: jnp.where(d, old, new), w2, w)
+            if decide is None and observe_it:
+                out = observe.fixed_obs(w2, sim).sum()
+            return w2, jnp.sum(out)
+
+        keys = jax.random.split(jax.random.key(0), steps)
+        us = jax.random.uniform(jax.random.key(1), (steps, cfg.num_envs))
+        return jax.jit(lambda w: jax.lax.scan(body, w, (keys, us)))
+
+    roll = jax.jit(ppo.make_rollout(dataclasses.replace(cfg, num_steps=steps), env, sim_params))
+    fns = {"the world's transition": loop(None, False), "+ the fixed observation": loop(None),
+           "+ the actor-critic, greedy": loop(lambda lg, k, u: jnp.argmax(lg, -1)),
+           "+ the actor-critic, jax.random.categorical": loop(lambda lg, k, u: jax.random.categorical(k, lg)),
+           "+ the actor-critic, ppo.sample (the rollout's)": loop(lambda lg, k, u: ppo.sample(lg, u)),
+           "the rollout (its transitions kept, resets)": lambda w: roll(learner, jax.random.key(3))}
+    for f in fns.values():
+        jax.block_until_ready(f(learner.env.world))
+    for name, f in fns.items():
+        times = []
+        for _ in range(7):
+            t = time.perf_counter()
+            jax.block_until_ready(f(learner.env.world))
+            times.append(time.perf_counter() - t)
+        print(f"{float(np.median(times)) / (cfg.num_envs * steps) * 1e6:6.3f} us/episode-iteration  {name}")
 
 
 if __name__ == "__main__":
