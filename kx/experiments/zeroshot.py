@@ -1,4 +1,4 @@
-"""The zero-shot study (issue 57, item 3): every learner trained on 3v2 alone, its validated champion played unchanged
+"""The zero-shot study: every learner trained on 3v2 alone, its validated champion played unchanged
 on the test states of 3v2, 4v3, 5v3 and 6v4, beside the hand-coded policies, and set against the same learner
 trained in the target (Table 3's no-transfer runs) and against NEAT evolved 50 generations in the target (the goal).
 
