@@ -41,7 +41,7 @@ def test_versus_divides_seconds_per_generation_cell_by_cell_and_pooled_over_setu
 def test_versus_refuses_an_unknown_method_naming_the_allowed(tmp_path, capsys):
     with pytest.raises(SystemExit):
         cell_costs.main([str(tmp_path), "--versus", "hyperneat:nest"])
-    assert "--versus: allowed METHOD:BASE with each of ['cma_es', 'hyperneat', 'neat', 'ppo']" in \
+    assert "--versus: allowed METHOD:BASE with each of ['cma_es', 'hyperneat', 'neat', 'ppo', 'ppo_entity']" in \
         capsys.readouterr().err
 
 
