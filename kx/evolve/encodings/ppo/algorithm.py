@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
+import jax.flatten_util
 import jax.numpy as jnp
 import numpy as np
 import optax
@@ -532,11 +533,14 @@ def make_update(cfg: PPOConfig, env: gym.KeepAway, env_params: KeepAwayParams, a
             t, a, tg = b
             grads, aux = jax.grad(loss, has_aux=True)(params, net.apply, t, a, tg, cfg.clip_eps, cfg.vf_coef,
                                                       cfg.ent_coef)
-            if axis is not None:  # the mean over every device's decisions: each device's mean times its count
+            if axis is not None:  # the mean over every device's decisions: each device's mean times its count,
+                # summed in one collective (one a leaf cost about 50 us each on a CPU, 2.5x the update's time)
                 n = jnp.float32(a.size) if t.valid is None else t.valid.sum(dtype=jnp.float32)
-                whole = jnp.maximum(total(n), 1.0)
-                grads = jax.tree.map(lambda g: total(g * n) / whole, grads)
-                aux = tuple(total(x * n) / whole for x in aux)
+                flat, unravel = jax.flatten_util.ravel_pytree(grads)
+                sums = total(jnp.concatenate([flat * n, jnp.stack(aux) * n, n[None]]))
+                whole = jnp.maximum(sums[-1], 1.0)
+                grads = unravel(sums[:flat.size] / whole)
+                aux = tuple(sums[flat.size:-1] / whole)
             step, opt_state = tx.update(grads, opt_state, params)
             return jax.tree.map(lambda p, u: p - lr * u, params, step), opt_state, jnp.stack(aux)
 
