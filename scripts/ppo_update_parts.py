@@ -16,7 +16,9 @@ milliseconds and in microseconds per decision.
 ``--parts`` then times the base's rollout built up part by part over 64 world iterations of its episodes (the
 world's transition alone; with the fixed observation; with the actor-critic's forward pass and the decision,
 greedy, sampled with ``jax.random.categorical`` and sampled as the rollout samples, :func:`ppo.sample`; the rollout
-itself), in microseconds per episode-iteration.
+itself), in microseconds per episode-iteration. ``--devices N`` times a block of updates (``--devices N`` episodes
+to end, learning rate 0) on the base's episodes at ``ppo.devices`` 1 and 2, in turn, twice, in milliseconds per
+update (docs/benchmarks.md, "Both cores").
 """
 
 import argparse
@@ -28,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from kx import runtime
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
 from kx.evolve.encodings.ppo import algorithm as ppo
@@ -39,7 +42,10 @@ def main(argv=None):
     p.add_argument("base", help="the base setting: PPOConfig fields, e.g. \"rollout='iteration',num_envs=512\"")
     p.add_argument("variants", nargs="*", help="settings, each changing the base")
     p.add_argument("--parts", action="store_true", help="also time the base's rollout part by part")
+    p.add_argument("--devices", type=int, default=0, metavar="EPISODES",
+                   help="also time a block of updates ending this many episodes at ppo.devices 1 and 2")
     args = p.parse_args(argv)
+    runtime.setup()  # one host device a core, before JAX starts
     run_dir, base, variants = args.run_dir, args.base, args.variants
     cfg_run = cfg_lib.read_run_config(pathlib.Path(run_dir) / "config.json")
     trainer = run_lib.Trainer(cfg_run)
@@ -96,6 +102,25 @@ def main(argv=None):
         print(f"{m * 1e3:7.2f} ms  {m / n * 1e6:5.2f} us/decision  {k}")
     if args.parts:
         rollout_parts(cfg, env, sim, sim_params, learner)
+    if args.devices:
+        devices_block(cfg, env, sim_params, learner, args.devices)
+
+
+def devices_block(cfg, env, sim_params, learner, episodes: int):
+    """A block of updates ending ``episodes`` episodes from ``learner`` (learning rate 0: every block plays the same
+    episodes), on one host device and data-parallel on two, timed warm in turn, twice."""
+    start = learner._replace(episodes=jnp.zeros((), jnp.int32), blocks=jnp.zeros((), jnp.int32))
+    blocks = {}
+    for dev in (1, 2):
+        c = dataclasses.replace(cfg, devices=dev, lr=0.0)
+        blocks[dev] = (jax.jit(ppo.make_block(c, env, sim_params, episodes, 0)), ppo.place(start, c))
+        jax.block_until_ready(blocks[dev][0](blocks[dev][1], jax.random.key(1)))
+    for _ in range(2):
+        for dev, (block, lrn) in blocks.items():
+            t = time.perf_counter()
+            out = jax.block_until_ready(block(lrn, jax.random.key(2)))
+            dt, n = time.perf_counter() - t, int(out[1]["updates"])
+            print(f"devices {dev}: {n} updates in {dt:.2f} s, {dt / n * 1e3:.2f} ms an update")
 
 
 def rollout_parts(cfg, env, sim, sim_params, learner, steps: int = 64):
