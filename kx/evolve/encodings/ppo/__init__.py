@@ -108,6 +108,14 @@ def _steps(c: ppo.PPOConfig) -> str:
     return "world iterations" if c.rollout == "iteration" else "SMDP steps"
 
 
+#: the shape of the shipped PPO configs (``ppo`` and ``ppo_entity``, every task): 512 episodes stepped one world
+#: iteration at a time, 16 a rollout, the episodes at a decision acting and learned from, 2 epochs of 16 minibatches,
+#: 2 x 32 units. Over 10 seeds of 3v2 its validated champions score 0.778 on Table 3's test states (docs/zeroshot)
+#: at about half the wall time of the SMDP shape of PPOConfig's defaults (64 episodes x 64 SMDP steps, 4 epochs of 4
+#: minibatches, 2 x 64 units; ``configs/ppo_3v2_smdp.py``): docs/benchmarks.md, "Levers for PPO's wall time"
+PROTOCOL_SHAPE = {"rollout": "iteration", "num_envs": 512, "num_steps": 16, "resets": 32, "hidden": 32,
+                  "update_epochs": 2, "num_minibatches": 16}
+
 _as_population = jax.jit(lambda params: jax.tree.map(lambda a: a[None], params))
 
 
@@ -126,6 +134,7 @@ class PPOEncoding(Encoding):
     def default_config(cls) -> ml_collections.ConfigDict:
         d = ppo.PPOConfig()
         c = {f: getattr(d, f) for f in FIELDS}
+        c.update(PROTOCOL_SHAPE)
         c["episodes_per_generation"] = 4500  # NEAT's 150 genomes x 30 trials
         c["anneal_episodes"] = 20 * 4500  # the learning rate falls to 0 over these (0: constant); set it with
         # generations (a field of its own, so that a run resumed for more generations computes what it did)
