@@ -58,11 +58,16 @@ def test_each_learner_has_a_config_the_mix_trains_on_two_tasks_at_the_same_budge
 def test_a_folder_of_another_study_is_refused_naming_what_differs(tmp_path):
     study = zs.Study(learners=("neat", "ppo"))
     have = zs.record(study, zs.check(study))
-    other = zs.Study(learners=("ppo", "cma_es"), configs=(("ppo", "configs/ppo_3v2_iteration.py"),))
+    other = zs.Study(learners=("ppo", "cma_es"), configs=(("ppo", "configs/ppo_3v2_smdp.py"),))
     with pytest.raises(RunError, match=r"learners\.ppo: config configs/ppo_3v2.py there, "
-                                       r"configs/ppo_3v2_iteration.py now \(fields .*ppo\.") as e:
+                                       r"configs/ppo_3v2_smdp.py now \(fields .*ppo\.") as e:
         zs._agree(tmp_path, have, zs.record(other, zs.check(other)))
     assert "cma_es" not in str(e.value)  # a new learner joins the folder
+    # the same fields from another file are the same learner: the folder keeps its record and its file's name
+    same = zs.Study(learners=("ppo", "cma_es"), configs=(("ppo", "configs/ppo_3v2_iteration.py"),))
+    merged = zs._agree(tmp_path, have, zs.record(same, zs.check(same)))
+    assert merged["learners"]["ppo"] == have["learners"]["ppo"]
+    assert merged["learners"]["ppo"]["config"] == "configs/ppo_3v2.py" and "cma_es" in merged["learners"]
     with pytest.raises(RunError, match="test_trials: 1000 there, 20 now"):
         zs._agree(tmp_path, have, zs.record(dataclasses.replace(study, test_trials=20), zs.check(study)))
     more = zs.Study(learners=("cma_es",))

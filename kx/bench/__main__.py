@@ -97,8 +97,10 @@ def main(argv=None) -> None:
     p.add_argument("--objective", default="fitness", help="transfer: the objective of the source and target runs")
     p.add_argument("--test-trials", type=int, default=1000, help="learning: test states every champion plays")
     p.add_argument("--methods", default="NEAT,HyperNEAT,CMA-ES,PPO",
-                   help="learning: the learners to run, comma-separated, of NEAT, HyperNEAT, CMA-ES, PPO and "
-                        "PPO-entity (default: the first four; the summary line needs NEAT and CMA-ES)")
+                   help="learning: the learners to run, comma-separated, of NEAT, HyperNEAT, CMA-ES, PPO, PPO-2dev "
+                        "(PPO data-parallel over two devices), PPO-smdp (PPO's older SMDP shape) and PPO-entity "
+                        "(default: the first four; the summary line needs NEAT and CMA-ES; a PPO method's wall time "
+                        "is set against NEAT's warm run)")
     p.add_argument("--ppo-warmup", type=int, default=150,
                    help="ppo: updates that train the network before the samples (a fresh one loses the ball at once)")
     p.add_argument("--skip", type=int, default=5,

@@ -180,11 +180,13 @@ def record(study: Study, cfgs: dict) -> dict:
 
 
 def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
-    """The folder's record with ``want``'s new learners added; ``RunError`` naming what differs."""
+    """The folder's record with ``want``'s new learners added; ``RunError`` naming what differs. A learner's config
+    read from another file than the folder's but resolving to the same fields is the same learner: the folder's
+    record, and the file it names, are kept."""
     diff = [f"{k}: {have.get(k)!r} there, {want[k]!r} now" for k in want if k != "learners" and have.get(k) != want[k]]
     for n, w in want["learners"].items():
         h = have["learners"].get(n)
-        if h is not None and h != w:
+        if h is not None and {**h, "config": w["config"]} != w:
             fields = sorted(k for k in set(cfg_lib.flatten(h["resolved"])) | set(cfg_lib.flatten(w["resolved"]))
                             if cfg_lib.flatten(h["resolved"]).get(k) != cfg_lib.flatten(w["resolved"]).get(k))
             diff.append(f"learners.{n}: config {h['config']} there, {w['config']} now"
@@ -192,7 +194,8 @@ def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
     if diff:
         raise RunError(f"{out} holds another zero-shot study ({'; '.join(diff)}): use another --out, or the same test "
                        "states, overrides and configs to add runs to it; nothing was run")
-    return {**have, "learners": {**have["learners"], **want["learners"]}}
+    return {**have, "learners": {**have["learners"], **{n: w for n, w in want["learners"].items()
+                                                        if n not in have["learners"]}}}
 
 
 def _row_key(row: dict) -> tuple:
@@ -265,7 +268,8 @@ def run(out: str | pathlib.Path, study: Study, log: Callable[[str], None] = prin
                 t0 = time.perf_counter()
                 enc, champion = finished.trainer.encoding, finished.state.champion
                 scores = {f"test_{t}": play(enc, champion, *states[t], states["key"]) for t in t3.TARGETS}
-                row = {"learner": learner, "config": study.config_file(learner), "seed": seed, "method": cfg.method,
+                row = {"learner": learner, "config": merged["learners"][learner]["config"], "seed": seed,
+                       "method": cfg.method,
                        "trained": trained_on(cfg), "generations": cfg.generations, "episodes": t3.episodes(cfg),
                        "max_fitness": finished.max_fitness,
                        "champion_generation": int(finished.state.champion_generation),
