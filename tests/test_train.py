@@ -295,7 +295,7 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert "population_size: allowed 1 for method 'ppo', got 2" in _err(
         capsys, w + ppo + ["--config.population_size=2"])
     assert "objective: allowed 'fitness' for method 'ppo'" in _err(capsys, w + ppo + ["--config.objective=hybrid"])
-    assert "ppo.num_minibatches: allowed a divisor of num_envs x num_steps = 4096" in _err(
+    assert "ppo.num_minibatches: allowed a divisor of num_envs x num_steps = 8192" in _err(
         capsys, w + ppo + ["--config.ppo.num_minibatches=3"])
     assert "ppo.gamma: allowed a number in [0, 1]" in _err(capsys, w + ppo + ["--config.ppo.gamma=1.5"])
     assert "ppo.resets: allowed an integer in [1, num_envs = 64]" in _err(capsys, w + ppo + ["--config.ppo.resets=65"])
