@@ -115,6 +115,60 @@ def test_the_report_reads_the_folder_alone_byte_for_byte_with_its_verdicts(tmp_p
     assert rows["| heuristic (hand-coded)"].endswith("| 0.200 | 0.200 | 0.200 | 0.200 |")
 
 
+def test_a_folder_of_the_same_study_run_elsewhere_merges_into_the_folder_it_would_be(tmp_path, capsys):
+    """Two folders, each a part of one synthetic study (NEAT's rows, and the entity policy's with one of NEAT's
+    again, timed otherwise), merge into the folder the whole study is: the same rows, record and report, byte for
+    byte; what does not fit is refused with a reason before anything is written, and a folder being run is
+    left alone."""
+    _synthetic_folder(tmp_path / "whole")
+    whole = tmp_path / "whole"
+    zs.write_report(whole)
+    rows, rec = zs.read_results(whole), json.loads((whole / "zeroshot.json").read_text())
+    for name, learners in (("x", ("neat",)), ("y", ("ppo_entity",))):
+        shutil.copytree(whole, tmp_path / name)
+        part = tmp_path / name
+        keep = [r for r in rows if r["learner"] in learners or (name == "y" and r == rows[0])]
+        csvfile.write(part / "results.csv", zs.FIELDS, [{**r, "wall_seconds": "99.0"} if name == "y" and
+                                                         r["learner"] == "neat" else r for r in keep])
+        (part / "zeroshot.json").write_text(json.dumps({**rec, "learners": {n: rec["learners"][n] for n in learners}}))
+        for f in ("report.md", "zeroshot.png"):
+            (part / f).unlink()
+    x, y = tmp_path / "x", tmp_path / "y"
+    (x / "baselines.csv").unlink()  # a folder without the hand-coded policies takes the other's
+    before = {f: (y / f).read_bytes() for f in ("results.csv", "zeroshot.json", "baselines.csv")}
+    assert cli.main(["zeroshot", "--out", str(x), "--merge", str(y)]) == 0
+    assert f"kx zeroshot: 10 rows of {y} joined {x} (ppo_entity seed 0, " in capsys.readouterr().out
+    assert zs.read_results(x) == rows  # the row both held keeps --out's times
+    assert json.loads((x / "zeroshot.json").read_text()) == rec
+    for f in ("results.csv", "baselines.csv", "report.md", "zeroshot.png"):
+        assert (x / f).read_bytes() == (whole / f).read_bytes(), f
+    assert {f: (y / f).read_bytes() for f in before} == before and not (x / "run.lock").exists()
+    assert zs.merge(x, y, log=lambda s: None) == rows  # again: nothing new
+
+    # refused, nothing written: a row of the same run that differs in more than its times, another study, itself
+    clash = [{**r, "test_4v3": "0.5"} if (r["learner"], r["seed"]) == ("ppo_entity", "3") else r
+             for r in zs.read_results(y)]
+    csvfile.write(y / "results.csv", zs.FIELDS, clash)
+    after = {f: (x / f).read_bytes() for f in ("results.csv", "zeroshot.json")}
+    with pytest.raises(RunError, match="the rows of ppo_entity seed 3 differ from .* in more than their times"):
+        zs.merge(x, y, log=lambda s: None)
+    (y / "zeroshot.json").write_text(json.dumps({**rec, "test_trials": 20}))
+    with pytest.raises(RunError, match="another zero-shot study .*test_trials: 1000 there, 20 now"):
+        zs.merge(x, y, log=lambda s: None)
+    with pytest.raises(ValueError, match="--merge: allowed another study folder than --out"):
+        zs.merge(x, x)
+    with pytest.raises(RunError, match="no zeroshot.json: not a zero-shot study's folder"):
+        zs.merge(x, tmp_path / "nothing")
+    assert not (tmp_path / "nothing").exists()
+    with run_lib.RunLock(x):  # a folder another process runs into
+        holder = run_lib.RunLock(x)
+        with pytest.raises(RunError, match="run.lock"):
+            holder.acquire()
+        with pytest.raises(RunError):
+            zs.merge(x, whole, log=lambda s: None)
+    assert {f: (x / f).read_bytes() for f in after} == after
+
+
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     """A tiny study, 2 learners x 2 seeds, run once for the slow tests."""

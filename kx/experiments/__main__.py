@@ -8,8 +8,9 @@
     python -m kx.experiments sweep --config configs/hyperneat_3v2.py \\
         --grid hyperneat.image=paper,authors --seeds 0-4 --out runs/image  # an ablation sweep
     python -m kx.experiments zeroshot --out docs/zeroshot                 # every learner's 3v2 champions, zero-shot
+    python -m kx.experiments zeroshot --out docs/zeroshot --merge runs/zs # the rows of the same study run elsewhere
     python -m kx.experiments zeroshot --out runs/zs --learners ppo --seeds 0-2 \
-        --config-of ppo=configs/ppo_3v2_iteration.py                      # a part of it, another config of PPO
+        --config-of ppo=configs/ppo_3v2_smdp.py                           # a part of it, another config of PPO
 
 ``zeroshot`` trains each learner (``--learners``, of neat, hyperneat, cma_es, ppo, ppo_entity, ppo_entity_mix) on 3v2
 over ``--seeds`` and plays its validated champion, unchanged, on the test states of 3v2, 4v3, 5v3 and 6v4 (by default
@@ -136,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the Table 3 folder whose no-transfer cells the report divides by (default docs/table3)")
     z.add_argument("--batch", type=int, default=16, help="seeds of one learner trained as one batched group, at most")
     z.add_argument("--report-only", action="store_true", help="write report.md from the folder's files and stop")
+    z.add_argument("--merge", default=None, metavar="OTHER",
+                   help="join the rows of the study folder OTHER (the same study run elsewhere) to --out's, write the "
+                        "report and stop (trains nothing)")
     args = p.parse_args(argv)
 
     from kx.experiments import processes
@@ -228,7 +232,9 @@ def _command(args: argparse.Namespace, shard) -> int:
         if args.command == "zeroshot":
             from kx.evolve.config import parse_seeds
             from kx.experiments import zeroshot
-            if not args.report_only:
+            if args.merge is not None:
+                zeroshot.merge(args.out, args.merge)
+            elif not args.report_only:
                 study = zeroshot.Study(
                     learners=tuple(zeroshot.LEARNERS) if args.learners is None else args.learners,
                     seeds=tuple(parse_seeds(args.seeds)), test_trials=args.test_trials, test_seed=args.test_seed,

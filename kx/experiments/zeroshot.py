@@ -30,6 +30,7 @@ import numpy as np
 
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
+from kx.evolve.checkpoint import RunLock
 from kx.evolve.errors import ConfigError, RunError
 from kx.experiments import csvfile, design, measure, runner, stats
 from kx.experiments import table3 as t3
@@ -179,10 +180,9 @@ def record(study: Study, cfgs: dict) -> dict:
                              "resolved": _resolved(c)} for n, c in cfgs.items()}}
 
 
-def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
-    """The folder's record with ``want``'s new learners added; ``RunError`` naming what differs. A learner's config
-    read from another file than the folder's but resolving to the same fields is the same learner: the folder's
-    record, and the file it names, are kept."""
+def _differences(have: dict, want: dict) -> list[str]:
+    """What in the record ``want`` differs from ``have``: a field of the study, or a learner both record with
+    other configs (a config read from another file but resolving to the same fields is the same learner)."""
     diff = [f"{k}: {have.get(k)!r} there, {want[k]!r} now" for k in want if k != "learners" and have.get(k) != want[k]]
     for n, w in want["learners"].items():
         h = have["learners"].get(n)
@@ -191,6 +191,14 @@ def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
                             if cfg_lib.flatten(h["resolved"]).get(k) != cfg_lib.flatten(w["resolved"]).get(k))
             diff.append(f"learners.{n}: config {h['config']} there, {w['config']} now"
                         + (f" (fields {', '.join(fields)})" if fields else ""))
+    return diff
+
+
+def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
+    """The folder's record with ``want``'s new learners added; ``RunError`` naming what differs
+    (:func:`_differences`). A learner's config from another file that resolves to the same fields keeps the
+    folder's record, and the file it names."""
+    diff = _differences(have, want)
     if diff:
         raise RunError(f"{out} holds another zero-shot study ({'; '.join(diff)}): use another --out, or the same test "
                        "states, overrides and configs to add runs to it; nothing was run")
@@ -224,11 +232,17 @@ def run(out: str | pathlib.Path, study: Study, log: Callable[[str], None] = prin
     """Trains and measures every (learner, seed) of ``study`` not yet in ``out/results.csv``, the seeds of a learner in
     batched groups of up to ``batch`` (1: one by one; the rows are the same but for the times); returns every row of
     ``out/results.csv``.
-    Every input, config and the folder's record are checked before any compute."""
+    Every input, config and the folder's record are checked before any compute. One process at a time writes a
+    folder: it holds ``out/run.lock`` (:class:`kx.evolve.checkpoint.RunLock`) while it runs."""
     if not isinstance(batch, int) or batch < 1:
         raise ValueError(f"--batch: allowed an integer >= 1, got {batch!r}")
     out = pathlib.Path(out).absolute()
     cfgs = check(study)
+    with RunLock(out, log):
+        return _run(out, study, cfgs, log, batch)
+
+
+def _run(out: pathlib.Path, study: Study, cfgs: dict, log: Callable[[str], None], batch: int) -> list[dict]:
     spec_path = out / "zeroshot.json"
     want = record(study, cfgs)
     have = json.loads(spec_path.read_text()) if spec_path.is_file() else None
@@ -282,6 +296,54 @@ def run(out: str | pathlib.Path, study: Study, log: Callable[[str], None] = prin
                     f"{t} {row[f'test_{t}']:.4f}" for t in TASKS) + f" ({row['wall_seconds']:.1f} s training, "
                     f"{row['test_seconds']:.1f} s zero-shot tests)")
     return _finish(ledger, out)
+
+
+def merge(out: str | pathlib.Path, other: str | pathlib.Path, log: Callable[[str], None] = print) -> list[dict]:
+    """The rows of the study folder ``other`` joined to ``out``'s, with the records of its learners: the same study
+    run elsewhere (another machine, or another process training other learners into a folder of its own). Refused
+    before anything is written, naming what differs, unless both folders record the same test states (their
+    digests), overrides and Table 3 folder, the learners both record the same configs, and a (learner, seed) both
+    hold the same row but for its times; the hand-coded policies' rows must agree too (``out`` takes ``other``'s if
+    it has none). Run directories are not copied (a run of ``other`` resumes only there). Both folders are locked
+    while they are read and written; returns ``out``'s rows."""
+    out, other = pathlib.Path(out).absolute(), pathlib.Path(other).absolute()
+    if out == other:
+        raise ValueError(f"--merge: allowed another study folder than --out, got {other}")
+    with RunLock(out, log), RunLock(other, log):
+        recs = {}
+        for d in (out, other):
+            if not (d / "zeroshot.json").is_file():
+                raise RunError(f"{d}: no zeroshot.json: not a zero-shot study's folder; nothing was merged")
+            recs[d] = json.loads((d / "zeroshot.json").read_text())
+        if "test_states" not in recs[other] or "test_states" not in recs[out]:
+            raise RunError(f"{other if 'test_states' not in recs[other] else out}: no test states recorded (a study "
+                           "that never ran); nothing was merged")
+        diff = _differences(recs[out], recs[other])
+        if diff:
+            raise RunError(f"{other} holds another zero-shot study than {out} ({'; '.join(diff)}); nothing was merged")
+        mine, theirs = read_results(out), read_results(other)
+        fixed = [f for f in FIELDS if f not in ("config", "wall_seconds", "test_seconds")]
+        have = {_row_key(r): r for r in mine}
+        clash = [k for r in theirs if (k := _row_key(r)) in have and any(have[k][f] != r[f] for f in fixed)]
+        if clash:
+            raise RunError(f"{other}: the rows of {', '.join(f'{n} seed {s}' for n, s in clash)} differ from {out}'s "
+                           "in more than their times; nothing was merged")
+        base = {d: csvfile.read(d / "baselines.csv", BASELINE_FIELDS, "kx zeroshot baselines file")
+                if (d / "baselines.csv").is_file() else None for d in (out, other)}
+        if base[out] is not None and base[other] is not None and base[out] != base[other]:
+            raise RunError(f"{other}/baselines.csv: the hand-coded policies' rows differ from {out}'s; nothing was "
+                           "merged")
+        new = [r for r in theirs if _row_key(r) not in have]
+        record = {**recs[out], "learners": {**recs[out]["learners"], **{
+            n: v for n, v in recs[other]["learners"].items() if n not in recs[out]["learners"]}}}
+        run_outputs.write_json(out / "zeroshot.json", record)  # the records first: a row never lacks its learner's
+        if base[out] is None and base[other] is not None:
+            csvfile.write(out / "baselines.csv", BASELINE_FIELDS, base[other])
+        rows = sorted([*mine, *new], key=_order)
+        csvfile.write(out / "results.csv", FIELDS, rows)
+        log(f"kx zeroshot: {len(new)} rows of {other} joined {out} ("
+            + (", ".join(f"{r['learner']} seed {r['seed']}" for r in new) or "none new") + f"); {len(rows)} rows")
+        return rows
 
 
 # ------------------------------------------------------------------------------------------------ the report
