@@ -298,7 +298,8 @@ def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp
     assert "ppo.num_minibatches: allowed a divisor of num_envs x num_steps = 8192" in _err(
         capsys, w + ppo + ["--config.ppo.num_minibatches=3"])
     assert "ppo.gamma: allowed a number in [0, 1]" in _err(capsys, w + ppo + ["--config.ppo.gamma=1.5"])
-    assert "ppo.resets: allowed an integer in [1, num_envs = 64]" in _err(capsys, w + ppo + ["--config.ppo.resets=65"])
+    assert "ppo.resets: allowed an integer in [1, num_envs = 512]" in _err(
+        capsys, w + ppo + ["--config.ppo.resets=513"])
     assert "trials: allowed an integer, got 'many'" in _err(capsys, w + ["--config.trials=many"])
     assert "trials: allowed an integer, got '2.5'" in _err(capsys, w + ["--config.trials", "2.5"])
     assert "task:" in _err(capsys, w + ["--config.task=9v2"])
