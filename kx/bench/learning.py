@@ -103,8 +103,16 @@ def run(args) -> None:
         target_base[task] = {n: float(ev.evaluate(make(target), None, t_starts, params, target,
                                                   key=keys.eval).fitness.mean()) for n, make in BASELINES.items()}
     results = {}
+    neat_warm = None
     for name, path in configs.items():
         results[name] = _train_and_test(path, seeds, starts, keys, name, targets, overrides.get(name, ()))
+        if name == "NEAT" and any(k.startswith("PPO") for k in configs):
+            # NEAT's wall time a run without its compilation, for the PPO ratios: its runs after the first, or,
+            # with one seed, its first seed run once more now, while its programs are still compiled
+            neat_warm = np.array(results[name][2][1:]) if len(seeds) > 1 else np.array(
+                _train_and_test(path, seeds[:1], starts, keys, "NEAT (warm, again)")[2])
+            print(f"NEAT: {neat_warm.mean():.1f} s a run warm, {results[name][2][0]:.1f} s its first run "
+                  "(compiling)", flush=True)
         # a finished method's compiled programs are released: each holds memory maps of the process, and
         # three methods' would near the kernel's limit (kx.runtime.check_maps)
         before = runtime.memory_maps()
@@ -137,16 +145,7 @@ def run(args) -> None:
         hyper, neat = mean["HyperNEAT"], mean["NEAT"]
         print(f"HyperNEAT: {hyper:.4f} fitness ({hyper / test['heuristic']:.1f}x the heuristic, "
               f"{hyper / neat:.2f}x NEAT)")
-    gradient = [k for k in mean if k.startswith("PPO")]
-    neat_warm = None
-    if gradient and "NEAT" in mean:
-        # NEAT's wall time a run without its compilation: its runs after the first, or, with one seed, its first
-        # seed run once more (its programs compiled), so that a ratio never counts NEAT's compilation against it
-        neat_warm = np.array(results["NEAT"][2][1:])
-        if not neat_warm.size:
-            neat_warm = np.array(_train_and_test(configs["NEAT"], seeds[:1], starts, keys, "NEAT (warm, again)")[2])
-        print(f"NEAT: {neat_warm.mean():.1f} s a run warm, {results['NEAT'][2][0]:.1f} s its first run (compiling)")
-    for name in gradient:
+    for name in (k for k in mean if k.startswith("PPO")):
         if neat_warm is not None:
             print(f"{name}: {mean[name]:.4f} fitness ({mean[name] / test['heuristic']:.1f}x the heuristic, "
                   f"{mean[name] / mean['NEAT']:.2f}x NEAT)")
