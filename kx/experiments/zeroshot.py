@@ -202,6 +202,11 @@ def _agree(out: pathlib.Path, have: dict, want: dict) -> dict:
     if diff:
         raise RunError(f"{out} holds another zero-shot study ({'; '.join(diff)}): use another --out, or the same test "
                        "states, overrides and configs to add runs to it; nothing was run")
+    return _joined(have, want)
+
+
+def _joined(have: dict, want: dict) -> dict:
+    """The record ``have`` with the learners only ``want`` records added after its own."""
     return {**have, "learners": {**have["learners"], **{n: w for n, w in want["learners"].items()
                                                         if n not in have["learners"]}}}
 
@@ -334,9 +339,8 @@ def merge(out: str | pathlib.Path, other: str | pathlib.Path, log: Callable[[str
             raise RunError(f"{other}/baselines.csv: the hand-coded policies' rows differ from {out}'s; nothing was "
                            "merged")
         new = [r for r in theirs if _row_key(r) not in have]
-        record = {**recs[out], "learners": {**recs[out]["learners"], **{
-            n: v for n, v in recs[other]["learners"].items() if n not in recs[out]["learners"]}}}
-        run_outputs.write_json(out / "zeroshot.json", record)  # the records first: a row never lacks its learner's
+        # the records first: a row never lacks its learner's
+        run_outputs.write_json(out / "zeroshot.json", _joined(recs[out], recs[other]))
         if base[out] is None and base[other] is not None:
             csvfile.write(out / "baselines.csv", BASELINE_FIELDS, base[other])
         rows = sorted([*mine, *new], key=_order)
