@@ -22,6 +22,7 @@ from kx import evaluate as evaluate_cli
 from kx import train as train_cli
 from kx.evolve import checkpoint as ckpt
 from kx.evolve import config as cfg_lib
+from kx.evolve import group as group_lib
 from kx.evolve import outputs, streams
 from kx.evolve import run as run_lib
 from kx.sim import env
@@ -285,7 +286,12 @@ def _err(capsys, argv, cli=train_cli):
     return err
 
 
-def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp_path):
+def test_bad_config_fields_and_values_are_refused_before_any_compute(capsys, tmp_path, monkeypatch):
+    def trained(*args, **kwargs):  # a case that has become valid fails here, instead of training a whole run
+        raise AssertionError("a config this test expects refused reached training")
+
+    monkeypatch.setattr(run_lib, "train", trained)
+    monkeypatch.setattr(group_lib, "train_group", trained)
     w = ["--workdir", str(tmp_path / "x")]
     assert "foo: no such config field" in _err(capsys, w + ["--config.foo=1"])
     assert "neat.nope: no such config field" in _err(capsys, w + ["--config.neat.nope=1"])
