@@ -35,10 +35,25 @@ def test_last_lines(tmp_path):
     assert re.fullmatch(r"policies: \d+ ns per live step hyperneat \(ratio \d+\.\d\d vs heuristic\)", out[-1]), out[-1]
 
 
-@pytest.mark.slow  # ~40 s: compiles PPO's update and NEAT's evaluator
-def test_the_ppo_benchmark_ends_with_its_machine_readable_line():
+@pytest.mark.slow  # ~40 s each: compiles PPO's update and NEAT's evaluator
+@pytest.mark.parametrize("config", [None, "configs/ppo_entity_4v3.py"])
+def test_the_ppo_benchmark_ends_with_its_machine_readable_line(config):
+    extra = [] if config is None else ["--config", config]
     out = subprocess.run([sys.executable, "-m", "kx.bench", "ppo", "--ppo-warmup", "2", "--repeats", "1",
-                          "--sample-seconds", "0"], capture_output=True, text=True, check=True).stdout.strip()
+                          "--sample-seconds", "0", *extra], capture_output=True, text=True, check=True).stdout.strip()
     last = out.splitlines()[-1]
     assert re.fullmatch(r"ppo: \d+ env steps/s \(ratio \d+\.\d{3} vs neat evaluator\)", last), last
     assert "world iterations a step" in out and "neat evaluator:" in out
+    assert ("ppo_entity (entity tokens" if config else "ppo (fixed layout") in out
+
+
+@pytest.mark.parametrize("config, match", [
+    ("configs/neat_4v3.py", r"--config: allowed a config of method 'ppo' or 'ppo_entity', got configs/neat_4v3.py "
+                            r"\(method 'neat'\)"),
+    ("configs/ppo_entity_3v2.py", r"--config: allowed a config of the NEAT fixture's task \(4v3\), got "
+                                  r"configs/ppo_entity_3v2.py \(task 3v2\)")])
+def test_the_ppo_benchmark_refuses_a_config_it_cannot_set_against_neat_before_any_compute(config, match):
+    done = subprocess.run([sys.executable, "-m", "kx.bench", "ppo", "--config", config], capture_output=True,
+                          text=True)
+    assert done.returncode != 0 and re.search(match, done.stderr), done.stderr
+    assert "devices:" not in done.stdout  # refused before the first figure's work

@@ -81,7 +81,8 @@ def main(argv=None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--generations", type=int, default=20,
                    help="neat_generation, generation, hyperneat: generations to run")
-    p.add_argument("--config", default=None, help="generation: the config file (default: configs/neat_3v2.py)")
+    p.add_argument("--config", default=None, help="generation, runs: the config file (default: configs/neat_3v2.py); "
+                   "ppo: the PPO config, of method ppo or ppo_entity in 4v3 (default: configs/ppo_4v3.py)")
     p.add_argument("--group-sizes", default="1,4,16", help="runs: the group sizes R (seeds 0..R-1)")
     p.add_argument("--rounds", type=int, default=1,
                    help="runs: rounds in turn per R (the group, then its seeds alone); the median ratio is reported")

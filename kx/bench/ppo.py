@@ -2,11 +2,12 @@
 steps per second for NEAT's policy, measured in the same run, in 4v3.
 
 **PPO's side** is what a ``method = "ppo"`` run pays: the update of
-:func:`kx.evolve.encodings.ppo.algorithm.make_update` (a rollout
-of ``num_envs x num_steps`` SMDP steps of the sampled policy through the environment's batched step, then
-``update_epochs`` passes of the clipped loss over it) with ``configs/ppo_4v3.py``'s settings (64 episodes
-x 64 steps, 4 epochs of 4 minibatches, 2 x 64 tanh units). A fresh network loses the ball within a few
-steps, and such short episodes are not what training pays for most of its budget, so the network is first
+:func:`kx.evolve.encodings.ppo.algorithm.make_update` (a rollout of the sampled policy through the environment's
+batched functions, then ``update_epochs`` passes of the clipped loss over its decisions) with
+``configs/ppo_4v3.py``'s settings, the shipped shape (:data:`kx.evolve.encodings.ppo.PROTOCOL_SHAPE`: 512 episodes
+x 16 world iterations, 2 epochs of 16 minibatches, 2 x 32 tanh units); ``--config`` names another PPO config of
+4v3, such as ``configs/ppo_entity_4v3.py`` (the entity network, same shape). A fresh network loses the ball within
+a few steps, and such short episodes are not what training pays for most of its budget, so the network is first
 trained for ``--ppo-warmup`` updates (their time, compilation included, is reported apart); then each
 sample runs updates for at least ``--sample-seconds``. An environment step is an SMDP step, from one
 decision of the holder to the next: the figure counts the decisions PPO learns from, and beside it the
@@ -21,7 +22,7 @@ is a decision of the holder's network while a keeper holds the ball) per second.
 
 The two are sampled in turn (``--repeats`` rounds); each figure is the median of its samples and the
 ratio the median of the ratios of samples of the same round. They do different work: NEAT's evaluator
-plays 4500 fixed networks forward, PPO steps 64 episodes and learns from every decision (a forward pass
+plays 4500 fixed networks forward, PPO steps 512 episodes and learns from every decision (a forward pass
 to act, then forward and backward passes in each epoch), so the ratio is what PPO's training costs per
 step of the world against what NEAT's evaluation costs, not a measure of either implementation alone.
 
@@ -46,17 +47,22 @@ def run(args) -> None:
     from kx.evolve.encodings.ppo import algorithm as ppo
     from kx.sim import env
 
+    path = args.config or "configs/ppo_4v3.py"
+    cfg = cfg_lib.load(path, ["gif=false"])
+    if cfg.method not in ("ppo", "ppo_entity"):
+        raise SystemExit(f"--config: allowed a config of method 'ppo' or 'ppo_entity', got {path} (method "
+                         f"{cfg.method!r})")
+    enc = cfg_lib.validate(cfg).encoding
     trainer, population, meta = load_fixture("neat")
     exp = trainer.exp
+    if (enc.sim, enc.sim_params) != (exp.sim, exp.sim_params):
+        raise SystemExit(f"--config: allowed a config of the NEAT fixture's task ({exp.sim.name}), got {path} "
+                         f"(task {cfg.task})")
     keys = streams.training(meta["seed"], meta["generation"])
     starts = env.reset_batch(keys.starts, trainer.cfg.trials, exp.sim_params, exp.sim)
     neat_work = evaluation_work(trainer.encoding.policy, trainer.encoding.policy_params(population), starts,
                       (exp.sim_params, exp.sim), keys.eval)
 
-    cfg = cfg_lib.load("configs/ppo_4v3.py", ["gif=false"])
-    enc = cfg_lib.validate(cfg).encoding
-    if (enc.sim, enc.sim_params) != (exp.sim, exp.sim_params):
-        raise SystemExit("configs/ppo_4v3.py: its task differs from the NEAT fixture's")
     pcfg = enc.ppo
     steps_per_update = pcfg.num_envs * pcfg.num_steps
     world = ppo.environment(pcfg, enc.sim)  # the environment the encoding trains on
@@ -67,10 +73,8 @@ def run(args) -> None:
     lanes = meta["population_size"] * trainer.cfg.trials
     print(f"neat: {meta['population_size']} genomes x {trainer.cfg.trials} start states ({lanes} lanes), the trained "
           "4v3 population of kx/bench/data/policies/neat_4v3.npz", flush=True)
-    unit = "world iterations" if pcfg.rollout == "iteration" else "SMDP steps"
-    print(f"ppo: {pcfg.num_envs} episodes x {pcfg.num_steps} {unit} an update ({steps_per_update} steps), "
-          f"{pcfg.update_epochs} epochs of {pcfg.num_minibatches} minibatches, 2 x {pcfg.hidden} tanh units",
-          flush=True)
+    print(f"ppo: {path}, {enc.describe()}; {steps_per_update} steps an update, {pcfg.update_epochs} epochs of "
+          f"{pcfg.num_minibatches} minibatches", flush=True)
 
     t0 = time.perf_counter()
     key = jax.random.key(args.seed + 1)
