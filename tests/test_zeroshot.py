@@ -155,7 +155,7 @@ def test_a_folder_of_the_same_study_run_elsewhere_merges_into_the_folder_it_woul
     whole = tmp_path / "whole"
     zs.write_report(whole)
     rows, rec = zs.read_results(whole), json.loads((whole / "zeroshot.json").read_text())
-    for name, learners in (("x", ("neat",)), ("y", ("ppo_entity",))):
+    for name, learners in (("x", ("neat",)), ("y", ("ppo_entity", "ppo_entity_mix"))):
         shutil.copytree(whole, tmp_path / name)
         part = tmp_path / name
         keep = [r for r in rows if r["learner"] in learners or (name == "y" and r == rows[0])]
@@ -168,7 +168,7 @@ def test_a_folder_of_the_same_study_run_elsewhere_merges_into_the_folder_it_woul
     (x / "baselines.csv").unlink()  # a folder without the hand-coded policies takes the other's
     before = {f: (y / f).read_bytes() for f in ("results.csv", "zeroshot.json", "baselines.csv")}
     assert cli.main(["zeroshot", "--out", str(x), "--merge", str(y)]) == 0
-    assert f"kx zeroshot: 10 rows of {y} joined {x} (ppo_entity seed 0, " in capsys.readouterr().out
+    assert f"kx zeroshot: 20 rows of {y} joined {x} (ppo_entity seed 0, " in capsys.readouterr().out
     assert zs.read_results(x) == rows  # the row both held keeps --out's times
     assert json.loads((x / "zeroshot.json").read_text()) == rec
     for f in ("results.csv", "baselines.csv", "report.md", "zeroshot.png"):
