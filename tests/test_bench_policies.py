@@ -52,8 +52,9 @@ def test_the_ppo_benchmark_ends_with_its_machine_readable_line(config):
                             r"\(method 'neat'\)"),
     ("configs/ppo_entity_3v2.py", r"--config: allowed a config of the NEAT fixture's task \(4v3\), got "
                                   r"configs/ppo_entity_3v2.py \(task 3v2\)")])
-def test_the_ppo_benchmark_refuses_a_config_it_cannot_set_against_neat_before_any_compute(config, match):
-    done = subprocess.run([sys.executable, "-m", "kx.bench", "ppo", "--config", config], capture_output=True,
-                          text=True)
-    assert done.returncode != 0 and re.search(match, done.stderr), done.stderr
-    assert "devices:" not in done.stdout  # refused before the first figure's work
+def test_the_ppo_benchmark_refuses_a_config_it_cannot_set_against_neat_before_any_compute(config, match, capsys):
+    from kx.bench import __main__ as bench
+
+    with pytest.raises(SystemExit, match=match):
+        bench.main(["ppo", "--config", config])
+    assert "devices:" not in capsys.readouterr().out  # refused before the first figure's work
