@@ -42,22 +42,25 @@ def test_the_evaluators_decisions_are_the_networks_forward_pass_on_every_team_si
     exp = cfg_lib.validate(cfg_lib.load(cfg_lib.CONFIG_DIR / "ppo_entity_3v2.py", TINY))
     enc = exp.encoding
     net = ppo.network(enc.ppo)
-    _, first = gym.KeepAway(exp.sim).reset_batch(jax.random.key(0), 4, KeepAwayParams())
-    tokens = entities.batch_first(entities.tokens(first.world, exp.sim))
-    champion, last = (net.init(jax.random.key(i), jax.tree.map(lambda a: a[0], tokens)) for i in (1, 2))
+    # each piece one program, not op by op (the checks are the same)
+    reset = jax.jit(lambda key, sim, n: gym.KeepAway(sim).reset_batch(key, n, KeepAwayParams())[1].world,
+                    static_argnums=(1, 2))
+    tokens = jax.jit(lambda world, sim: entities.batch_first(entities.tokens(world, sim)), static_argnums=1)
+    first = jax.tree.map(lambda a: a[0], tokens(reset(jax.random.key(0), exp.sim, 4), exp.sim))
+    init, apply = jax.jit(net.init), jax.jit(net.apply)
+    champion, last = (init(jax.random.key(i), first) for i in (1, 2))
     for k, t in ((3, 2), (6, 4)):  # the source's team and the largest (4v3 and 5v3: test_entity.py's tokens)
         sim = KeepAwayConfig(n_keepers=k, n_takers=t)
-        _, starts = gym.KeepAway(sim).reset_batch(jax.random.key(k), 64, KeepAwayParams())
-        world = starts.world
+        world = reset(jax.random.key(k), sim, 64)
         policy = enc.policy_for(sim)
         assert policy.shared
         both = jax.tree.map(lambda a, b: np.stack([a, b]), champion, last)
         index = jax.numpy.asarray(np.arange(64) % 2, jax.numpy.int32)
         got = np.asarray(jax.jit(policy.apply)(Shared(both, index), world, None))
-        obs = entities.batch_first(entities.tokens(world, sim))
+        obs = tokens(world, sim)
         want = []
         for params in (champion, last):
-            logits, _ = net.apply(params, obs)
+            logits, _ = apply(params, obs)
             want.append(np.asarray(entities.keeper_of(np.argmax(np.asarray(logits), -1), world, sim)))
         np.testing.assert_array_equal(got, np.where(np.arange(64) % 2 == 0, want[0], want[1]))
         assert len(np.unique(got)) > 1 and not np.array_equal(want[0], want[1])  # decisions that can disagree
