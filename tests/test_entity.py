@@ -22,7 +22,8 @@ TASKS = [(3, 2), (4, 3), (5, 3), (6, 4)]
 
 def _states(k: int, t: int, n: int = 16):
     env = gym.KeepAway(KeepAwayConfig(n_keepers=k, n_takers=t), "entities")
-    _, state = env.reset_batch(jax.random.key(k * 10 + t), n, KeepAwayParams())
+    # one program, not op by op
+    _, state = jax.jit(env.reset_batch, static_argnums=1)(jax.random.key(k * 10 + t), n, KeepAwayParams())
     return env, state
 
 
@@ -112,14 +113,15 @@ def test_the_entity_network_follows_its_teammates_ignores_the_takers_order_and_f
     # larger output weights than the initial 0.01, so that a wrong ordering would show
     params = jax.tree.map(lambda a: a * 50.0 if a.ndim == 2 and a.shape[-1] == 1 else a, params)
     rng = np.random.default_rng(1)
+    apply = jax.jit(net.apply)
     for k, t in TASKS:
         _, obs = _net_and_obs(k, t)
-        logits, value = net.apply(params, obs)  # the same weights for every team size
+        logits, value = apply(params, obs)  # the same weights for every team size
         assert logits.shape == (8, k) and value.shape == (8,)
         assert np.all(np.isfinite(logits)) and np.ptp(np.asarray(logits)) > 1e-3
         pm, pt = rng.permutation(k - 1), rng.permutation(t)
         moved = dict(obs, mates=obs["mates"][:, pm], takers=obs["takers"][:, pt])
-        l2, v2 = net.apply(params, moved)
+        l2, v2 = apply(params, moved)
         np.testing.assert_allclose(l2[:, 0], logits[:, 0], rtol=1e-5, atol=1e-6)  # hold: unchanged
         np.testing.assert_allclose(l2[:, 1:], logits[:, 1:][:, pm], rtol=1e-5, atol=1e-6)  # passes follow
         np.testing.assert_allclose(v2, value, rtol=1e-5, atol=1e-6)
