@@ -132,12 +132,14 @@ def test_the_report_reads_the_folder_alone_byte_for_byte_with_its_verdicts(tmp_p
     assert rows["| heuristic (hand-coded)"].endswith("| 0.200 | 0.200 | 0.200 | 0.200 |")
 
 
-@pytest.mark.slow  # ~25 s: 2000 bootstrap intervals of 5000 resamples a case
-@pytest.mark.parametrize("learner, task", [("neat", "4v3"), ("ppo", "4v3"), ("cma_es", "6v4")])
+@pytest.mark.slow  # ~12 s a case: 2000 bootstrap intervals of 5000 resamples
+@pytest.mark.parametrize("task", ["4v3", "6v4"])
+@pytest.mark.parametrize("learner", ["neat", "ppo", "cma_es"])
 def test_the_goals_interval_holds_its_level_on_null_data_resampled_from_the_folders_runs(learner, task):
     """The goal's test, an interval of the probability of improvement above 0.5 (a one-sided test at 2.5%), on null
     data shaped like the study's: both learners' 10 runs drawn from the same learner's 10 committed zero-shot scores
-    (ties included). The report states 2.5-3.2% from 4000 data sets a case; 2000 here."""
+    (ties included), 2000 data sets a case. The report and docs/experiments.md quote these six cases' rates (2.75-3.7%):
+    about 3%, a little above the nominal 2.5%."""
     from kx.experiments import stats
 
     rows = zs.read_results(ROOT / "docs" / "zeroshot")
