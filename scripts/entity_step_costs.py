@@ -6,7 +6,7 @@ on 512 episodes' start states: its forward pass, the environment's iteration wit
 observation alone, and one PPO minibatch step (loss, gradient, Adam) on 512 entries; each the median of 7 calls
 of 16 steps, in microseconds an entry."""
 
-import sys
+import argparse
 import time
 
 import jax
@@ -64,4 +64,6 @@ def main(task: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "4v3")
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("task", nargs="?", default="4v3", help="the task, '<keepers>v<takers>' (default 4v3)")
+    main(parser.parse_args().task)
