@@ -468,14 +468,11 @@ def test_a_tiny_protocol_interrupted_mid_run_resumes_and_redoes_no_finished_run(
     assert "python -m kx.experiments table3 --runs 20 --methods neat --targets 4v3,5v3,6v4 --out <this folder>" in md
 
 
-def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
-    """A protocol folder as a fresh clone has it (results.csv and protocol.json, no run directories) extends to
-    a target it has no run of (4v3; the folder holds the two fitness sources alone, so that one task's
-    programs compile, not two): its sources are trained again as a group, reproduce their rows, and seed the
-    new targets. Refused before any compute: a source whose row the protocol's config would not give now, test
-    states or a design this code would not use, a finished source directory that is not the run of its row.
-    A re-run that does not reproduce its row is set aside and seeds nothing; the rest of its group is
-    checked all the same."""
+def _committed_sources(tmp_path):
+    """A protocol folder as a fresh clone has it (results.csv and protocol.json, no run directories) that holds the
+    two fitness sources of NEAT alone (so that one task's programs compile, not two), the plan that extends it to
+    4v3, and ``refused(match, run, **changes)``: the extension refused with ``match`` once run ``run``'s row is
+    edited so (the committed results.csv put back after)."""
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     out = tmp_path / "t3"
     to_4v3 = t3.plan(("neat",), ("4v3",), ("fitness",), runs=2)
@@ -485,7 +482,6 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     shutil.rmtree(out / "runs")
     rows = t3.read_results(out / "results.csv")
     sources = {int(r["run"]): r for r in rows if r["phase"] == "source"}
-    src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
 
     def edit(run, **changes):
         csvfile.write(out / "results.csv", t3.FIELDS, [dict(r, **changes) if r is sources[run] else r for r in rows])
@@ -496,6 +492,15 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
             t3.run(out, protocol, to_4v3, log=lambda s: None)
         (out / "results.csv").write_bytes(committed["results.csv"])
 
+    return types.SimpleNamespace(protocol=protocol, out=out, to_4v3=to_4v3, committed=committed, sources=sources,
+                                 edit=edit, refused=refused)
+
+
+def test_a_folder_of_only_its_committed_files_refuses_an_extension_it_cannot_trust_before_any_compute(tmp_path):
+    """Extending a fresh clone's folder to a target it has no run of (4v3) is refused before any compute: a source
+    whose row the protocol's config would not give now, test states or a design this code would not use."""
+    f = _committed_sources(tmp_path)
+    protocol, out, to_4v3, committed, refused = f.protocol, f.out, f.to_4v3, f.committed, f.refused
     refused(r"neat 3v2 source \(fitness\) run 0: its run directory .* is missing, and its row .*seed recorded 1,",
             seed="1")
     refused(r"generations recorded 3, now 2", generations="3")
@@ -513,6 +518,17 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     (out / "protocol.json").write_bytes(committed["protocol.json"])
     assert not (out / "runs").exists()  # nothing ran
 
+
+@pytest.mark.slow  # ~60 s on CI: the sources trained three times over and two targets; the refusals before any
+# compute are the default suite's (the test above)
+def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
+    """A protocol folder as a fresh clone has it extends to a target it has no run of (4v3): its sources are
+    trained again as a group, reproduce their rows, and seed the new targets. Refused: a finished source directory
+    that is not the run of its row. A re-run that does not reproduce its row is set aside and seeds nothing; the
+    rest of its group is checked all the same."""
+    f = _committed_sources(tmp_path)
+    protocol, out, to_4v3, committed, edit, refused = f.protocol, f.out, f.to_4v3, f.committed, f.edit, f.refused
+    src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
     # run 0's row edited where only a re-run can tell (its max fitness): both sources re-run as a group, run
     # 0's set aside, run 1's reproduced and kept; no target runs
     lines = []
@@ -528,7 +544,7 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     (out / "results.csv").write_bytes(committed["results.csv"])
     # run 1's finished directory is not the run of a row with another curve: refused, read not computed
     refused(r"run 1: its run directory .*run01 is not the run of its row .*best_validation from generation 2",
-            run=1, best_validation=sources[1]["best_validation"].split()[0] + " 0.125")
+            run=1, best_validation=f.sources[1]["best_validation"].split()[0] + " 0.125")
     assert not (src_dir / "run00").exists()
 
     lines = []
@@ -935,7 +951,7 @@ def test_a_comparison_decided_at_its_first_look_keeps_that_looks_direction():
     assert r["way"] == -1 and r["verdict"] == "contradicted"
 
 
-@pytest.mark.slow  # ~25 s: four tiny runs (the default suite checks the run loop's own re-run of a source:
+@pytest.mark.slow  # ~25 s: four tiny runs (the run loop's own re-run of a source is also the slow set's:
 # test_a_folder_of_only_its_committed_files_extends_to_another_target)
 def test_reproduce_trains_a_folders_runs_again_and_names_the_columns_that_differ(tmp_path, capsys):
     """``python -m kx.experiments reproduce``: one run of each method trained again from the folder's committed

@@ -104,7 +104,10 @@ def test_native_plays_the_same_episodes_in_the_evaluator():
     check_episodes_alike()
 
 
-@pytest.mark.parametrize("episodes", [False, pytest.param(True, marks=pytest.mark.slow)])
+# Both in the slow set (a process of its own compiling at XLA's default level: ~20 s on CI without the episodes);
+# the default suite checks the kernel's sums and episodes against the XLA code's under the suite's flags (above)
+@pytest.mark.slow
+@pytest.mark.parametrize("episodes", [False, True])
 def test_native_under_xla_default_flags(episodes):
     """In a process of its own under XLA's default flags, which the run loop compiles with: the chain is fused
     there (one rounding per multiply-add), and the kernel's sums (and, in the slow set, the evaluator's episodes)

@@ -207,6 +207,13 @@ def check_the_build_against_the_reference() -> None:
 
 
 def test_the_build_is_bit_for_bit_the_reference_with_every_hidden_row_and_every_bias():
+    """:func:`sb.build` against the reference, every bit, under the suite's flags (in this process); the slow set
+    repeats it under XLA's default flags, where the run loop compiles (the test after this one)."""
+    check_the_build_against_the_reference()
+
+
+@pytest.mark.slow  # a process of its own compiling at XLA's default level: ~20 s on CI; the test above is the default
+def test_the_build_is_bit_for_bit_the_reference_under_xla_default_flags():
     """:func:`sb.build` reads only the hidden rows each node's sum needs (2, 4, then ``rows``) and computes
     the bias output only on the diagonal: every bit of every weight and bias as the reference (every row,
     every output on every link, ``reference=True``; with 4 rows too, as before 2026-12-05), on hand-made
