@@ -46,9 +46,15 @@ def parents_of(children):
     return [set((np.rint(w[i][valid[i]] / TAG).astype(int) - 1).tolist()) for i in range(w.shape[0])]
 
 
+KEYS = 16  # every test's batch of keys: one program for all of them (a batch of another size compiles again)
+
+
 @functools.lru_cache(maxsize=None)
-def _tell_keys():
-    """tell over a batch of keys for one state and score (jitted once)."""
+def _tell_keys(with_fitness=False):
+    """tell over a batch of :data:`KEYS` keys for one state and score (and task fitness), jitted once."""
+    if with_fitness:
+        return jax.jit(jax.vmap(lambda k, pop, s, st, prm, fit: alg.tell(k, pop, s, st, prm, CFG, fitness=fit),
+                                in_axes=(0, None, None, None, None, None)))
     return jax.jit(jax.vmap(lambda k, pop, s, st, prm: alg.tell(k, pop, s, st, prm, CFG),
                             in_axes=(0, None, None, None, None)))
 
@@ -57,7 +63,7 @@ def test_parents_come_from_the_top_of_their_species_and_every_top_member_breeds(
     sizes = [10, 9, 5]
     state = tagged_state(sizes)
     score = 1.0 + jax.random.permutation(jax.random.key(1), P).astype(jnp.float32) / P
-    keys = jax.random.split(jax.random.key(2), 16)
+    keys = jax.random.split(jax.random.key(2), KEYS)
     new, m = _tell_keys()(keys, state.population, score, state, QUIET)
     n_off = np.asarray(m["offspring"][0])[: len(sizes)]
     assert n_off.sum() == P and np.all(n_off > 0)
@@ -81,7 +87,7 @@ def test_the_champion_of_a_species_larger_than_elitism_min_size_is_copied_unchan
     sizes = [10, 9, 5]  # elitism_min_size 5: the species of 10 and of 9 keep their champion, that of 5 not
     state = tagged_state(sizes)
     score = 1.0 + jax.random.permutation(jax.random.key(3), P).astype(jnp.float32) / P
-    keys = jax.random.split(jax.random.key(4), 8)
+    keys = jax.random.split(jax.random.key(4), KEYS)
     new, m = _tell_keys()(keys, state.population, score, state, LOUD)
     n_off = np.asarray(m["offspring"][0])[: len(sizes)]
     assert np.all(n_off > 0)
@@ -107,9 +113,8 @@ def test_selection_follows_the_score_and_reports_follow_the_fitness():
     state = state.replace(population=pop.replace(conn_enabled=en))
     fitness = jax.random.permutation(jax.random.key(5), P).astype(jnp.float32)  # 0..23
     score = (P - 1) - fitness  # a permutation of the fitness values: the best by score is the worst by fitness
-    keys = jax.random.split(jax.random.key(6), 8)
-    new, m = jax.jit(jax.vmap(lambda k: alg.tell(k, state.population, score, state, QUIET, CFG,
-                                                     fitness=fitness)))(keys)
+    keys = jax.random.split(jax.random.key(6), KEYS)
+    new, m = _tell_keys(True)(keys, state.population, score, state, QUIET, fitness)
     f = np.asarray(fitness)
     by_score = set(np.argsort(-np.asarray(score))[:7].tolist())
     assert by_score.isdisjoint(np.argsort(-f)[:7].tolist())
@@ -216,7 +221,7 @@ def test_the_fittest_genomes_children_are_counted():
     sizes = [10, 9, 5]
     state = tagged_state(sizes)
     fitness = 1.0 + jax.random.permutation(jax.random.key(8), P).astype(jnp.float32) / P
-    keys = jax.random.split(jax.random.key(9), 6)
+    keys = jax.random.split(jax.random.key(9), KEYS)
     f = np.asarray(fitness)
     top = int(np.argmax(f))
     sp = np.asarray(state.species)
@@ -229,8 +234,7 @@ def test_the_fittest_genomes_children_are_counted():
         assert int(m["fittest_elite"][r]) == int(elite_species)
     # selection on a score that ranks the fittest genome last: it is outside every pool and has no child
     score = jnp.asarray(f.max() + 1.0 - f)
-    new, m = jax.jit(jax.vmap(lambda k: alg.tell(k, state.population, score, state, QUIET, CFG,
-                                                     fitness=fitness)))(keys)
+    new, m = _tell_keys(True)(keys, state.population, score, state, QUIET, fitness)
     for r in range(keys.shape[0]):
         assert not any(top in par for par in parents_of(one(new.population, r)))
     assert np.all(np.asarray(m["fittest_offspring"]) == 0) and np.all(np.asarray(m["fittest_elite"]) == 0)
