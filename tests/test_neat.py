@@ -307,9 +307,10 @@ def test_stagnant_species_get_no_offspring():
     # Two species; species 1 has not improved for 15 generations and is not the best.
     sp = jnp.where(jnp.arange(24) < 12, 0, 1).astype(jnp.int32)
     state = state.replace(species=sp, species_alive=jnp.zeros(6, bool).at[:2].set(True),
-                          species_best=jnp.full(6, jnp.inf).at[0].set(-jnp.inf), generation=jnp.int32(20),
-                          species_improved=jnp.zeros(6, jnp.int32).at[0].set(20))
-    fit = jnp.where(sp == 0, 2.0, 1.0)
+                          species_best=jnp.full(6, jnp.inf, jnp.float32).at[0].set(-jnp.inf),
+                          generation=jnp.int32(20), species_improved=jnp.zeros(6, jnp.int32).at[0].set(20))
+    # float32, not weakly typed: the program evolve() compiled is reused (a weak type would compile tell again)
+    fit = jnp.where(sp == 0, 2.0, 1.0).astype(jnp.float32)
     _, m = _tell(CFG)(jax.random.key(1), state.population, fit, state, NEATParams())
     assert list(np.asarray(m["offspring"])[:2]) == [24, 0]
     assert int(m["stagnant_species"]) == 1
