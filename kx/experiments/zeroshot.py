@@ -492,7 +492,8 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
                 weak = [m for m in by if m != n and t not in rec["learners"][m]["trained"].split("+")
                         and not stats.improvement_interval(by[n][t], by[m][t]).low > 0.5]
                 passes = z >= g and not weak
-                reasons = "; ".join(([f"IQM {z:.3f} < {g:.3f}"] if z < g else [f"IQM {z:.3f} >= {g:.3f}"])
+                digits = next(d for d in (3, 4, 5, 6, 9) if f"{z:.{d}f}" != f"{g:.{d}f}" or d == 9)  # 0.3990 < 0.3993
+                reasons = "; ".join(([f"IQM {z:.{digits}f} {'<' if z < g else '>='} {g:.{digits}f}"])
                                     + ([f"P(improvement) interval not above 0.5 over {', '.join(weak)}"] if weak
                                        else ["every P(improvement) interval above 0.5"]))
                 if not eligible:
