@@ -74,20 +74,20 @@ def np_tree(state):
     return {f: np.asarray(getattr(state, f)) for f in state.__dataclass_fields__}
 
 
-# Files that take longest come first (measured: --durations=0 under a cold cache, 2026-12-06), so that `--dist
-# loadfile` hands them out before the short ones and both workers end together; the order within a file
-# is kept. xdist keeps this order only with `--no-loadscope-reorder` (the Makefile passes it): by default
-# it deals files out by their number of tests, which left a long file of few tests for last. A file not
+# Files that take longest come first (measured: KX_TEST_PROFILE under a cold cache, 2026-12-06, less what went to the
+# slow set after it), so that `--dist loadfile` hands them out before the short ones and both workers end together;
+# the order within a file is kept. xdist keeps this order only with `--no-loadscope-reorder` (the Makefile passes it):
+# by default it deals files out by their number of tests, which left a long file of few tests for last. A file not
 # listed goes after these: list a new file that takes more than a few seconds.
-LONGEST_FIRST = ("test_gym.py", "test_entity.py", "test_experiments.py", "test_neat.py", "test_neat_selection.py",
-                 "test_native.py", "test_transfer.py", "test_env.py", "test_group.py", "test_bev.py",
-                 "test_train_ppo.py", "test_train_entity.py", "test_train.py", "test_ppo.py", "test_substrate.py",
-                 "test_cppn.py", "test_shared_tables.py", "test_devices.py", "test_evolve.py", "test_run_loop.py",
-                 "test_train_hyperneat.py", "test_evaluate.py", "test_run_dir_fixture.py", "test_reference.py",
-                 "test_clustered.py", "test_neat_readings.py", "test_config.py", "test_novelty.py", "test_confirm.py",
-                 "test_native_build.py", "test_neat_mutation.py", "test_run_dir.py", "test_processes.py",
-                 "test_lanes.py", "test_behaviour.py", "test_train_novelty.py", "test_openblas.py", "test_render.py",
-                 "test_runtime.py")
+LONGEST_FIRST = ("test_neat.py", "test_gym.py", "test_entity.py", "test_group.py", "test_experiments.py",
+                 "test_run_loop.py", "test_bev.py", "test_env.py", "test_transfer.py", "test_ppo.py", "test_train.py",
+                 "test_shared_tables.py", "test_cppn.py", "test_reference.py", "test_evaluate.py", "test_train_ppo.py",
+                 "test_config.py", "test_clustered.py", "test_neat_selection.py", "test_train_hyperneat.py",
+                 "test_run_dir_fixture.py", "test_neat_mutation.py", "test_neat_readings.py", "test_confirm.py",
+                 "test_evolve.py", "test_novelty.py", "test_native.py", "test_substrate.py", "test_native_build.py",
+                 "test_devices.py", "test_run_dir.py", "test_bench_platform.py", "test_train_entity.py",
+                 "test_processes.py", "test_render.py", "test_behaviour.py", "test_openblas.py", "test_lanes.py",
+                 "test_zeroshot.py", "test_train_novelty.py", "test_runtime.py")
 
 
 def pytest_collection_modifyitems(config, items):
