@@ -16,7 +16,7 @@ from kx.evolve import run as run_lib
 from kx.evolve import streams
 from kx.evolve.errors import RunError
 from kx.experiments import __main__ as cli
-from kx.experiments import csvfile, measure
+from kx.experiments import csvfile, measure, stats
 from kx.experiments import zeroshot as zs
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -130,6 +130,32 @@ def test_the_report_reads_the_folder_alone_byte_for_byte_with_its_verdicts(tmp_p
     assert "**Interim**: no verdict yet; seeds still to run: ppo_entity 9 of 10." in goal
     assert "reached**" not in goal and goal.count("interim, would read reached: IQM 0.6") == 3
     assert rows["| heuristic (hand-coded)"].endswith("| 0.200 | 0.200 | 0.200 | 0.200 |")
+
+
+def test_an_iqm_a_hair_from_the_goal_prints_the_digits_that_tell_them_apart(tmp_path):
+    """An IQM that rounds to the goal at three digits (the mix's 0.3989 against 0.3991 in 5v3 printed 0.399 < 0.399)
+    is printed with as many digits as part them, on either side of the goal."""
+    folder = tmp_path / "study"
+    _synthetic_folder(folder)
+    goal = {t: stats.iqm(v) for t, v in zs.trained_in_target(json.loads((folder / "zeroshot.json").read_text()))[0]
+            ["neat"].items()}
+    g = goal["5v3"]
+    below, above = g - 2e-4, g + 3e-5
+    assert f"{below:.3f}" == f"{g:.3f}" or f"{above:.3f}" == f"{g:.3f}"  # the case the digits are for
+    results = zs.read_results(folder)
+    for r in results:
+        if r["learner"] in ("ppo_entity", "ppo_entity_mix"):
+            r["test_5v3"] = below if r["learner"] == "ppo_entity" else above
+    csvfile.write(folder / "results.csv", zs.FIELDS, results)
+    text = zs.write_report(folder).read_text().split("## The goal to beat")[1].split("## Probability")[0]
+    entity, mix = (line.split(" | ")[3] for line in text.splitlines() if line.startswith("| ppo_entity"))
+    d = next(d for d in (3, 4, 5, 6) if f"{below:.{d}f}" != f"{g:.{d}f}")
+    assert f"IQM {below:.{d}f} < {g:.{d}f};" in entity and float(f"{below:.{d}f}") < float(f"{g:.{d}f}")
+    d = next(d for d in (3, 4, 5, 6) if f"{above:.{d}f}" != f"{g:.{d}f}")
+    assert f"IQM {above:.{d}f} >= {g:.{d}f};" in mix and d >= 4
+    # three digits where three tell them apart (NEAT far above the goal)
+    neat = next(line for line in text.splitlines() if line.startswith("| neat"))
+    assert f">= {goal['4v3']:.3f};" in neat and f">= {goal['4v3']:.4f};" not in neat
 
 
 @pytest.mark.slow  # ~12 s a case: 2000 bootstrap intervals of 5000 resamples
