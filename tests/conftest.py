@@ -115,14 +115,37 @@ if os.environ.get("KX_TEST_PROFILE"):
 
     monitoring.register_event_duration_secs_listener(_listen)
 
+    # and each program it compiled or read from the persistent cache, with the seconds it took: a program compiled
+    # by several tests (or several times in one, for batches of other sizes) is what sharing its shapes would save
+    import logging
+    import re
+
+    _PROGRAMS: list = []
+    _HITS: set = set()
+
+    class _Programs(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("Persistent compilation cache hit for '"):
+                _HITS.add(msg.split("'")[1])
+            elif m := re.match(r"Finished XLA compilation of (.*) in ([0-9.]+) sec", msg):
+                _PROGRAMS.append([m[1], round(float(m[2]), 3), m[1] in _HITS])
+
+    jax.config.update("jax_log_compiles", True)
+    logging.getLogger("jax").addHandler(_Programs())
+
     @pytest.hookimpl(wrapper=True)
     def pytest_runtest_protocol(item, nextitem):
         _SPENT.clear()
+        _PROGRAMS.clear()
         t0 = __import__("time").perf_counter()
         out = yield
         with open(os.environ["KX_TEST_PROFILE"], "a") as f:
             f.write(json.dumps({"test": item.nodeid, "worker": os.environ.get("PYTEST_XDIST_WORKER", ""),
                                 "end": round(__import__("time").time(), 1),
                                 "seconds": __import__("time").perf_counter() - t0,
-                                **{k: round(v, 3) for k, v in _SPENT.items()}}) + "\n")
+                                **{k: round(v, 3) for k, v in _SPENT.items()},
+                                "programs": [p for p in _PROGRAMS if p[1] >= 0.05],  # and the rest, summed:
+                                "small_programs": [sum(p[1] < 0.05 for p in _PROGRAMS),
+                                                   round(sum(p[1] for p in _PROGRAMS if p[1] < 0.05), 3)]}) + "\n")
         return out
