@@ -129,7 +129,8 @@ if os.environ.get("KX_TEST_PROFILE"):
             if msg.startswith("Persistent compilation cache hit for '"):
                 _HITS.add(msg.split("'")[1])
             elif m := re.match(r"Finished XLA compilation of (.*) in ([0-9.]+) sec", msg):
-                _PROGRAMS.append([m[1], round(float(m[2]), 3), m[1] in _HITS])
+                # the cache names a program jit_tell where the compile log says jit(tell)
+                _PROGRAMS.append([m[1], round(float(m[2]), 3), re.sub(r"\W", "_", m[1]).rstrip("_") in _HITS])
 
     jax.config.update("jax_log_compiles", True)
     logging.getLogger("jax").addHandler(_Programs())
