@@ -361,7 +361,9 @@ def test_skip_idle_holds_where_nobody_reads():
 
 def test_literal_equals_dense():
     config = CFG
-    state = jax.tree.map(lambda a: a[..., ::16], random_states(jax.random.key(3), config, 16))
+    # one state of each kind (a reset, stepped once and six times, two adversarial), from the 48 of each that the
+    # 3v2 tests above draw: the same program
+    state = jax.tree.map(lambda a: a[..., ::48], random_states(jax.random.key(3), config))
     n = state.holder.shape[0]
     table = random_table(jax.random.key(4), 2, W * W)
     shared = Shared(table, jnp.arange(n, dtype=jnp.int32) % 2)

@@ -578,9 +578,10 @@ def test_a_resumed_run_is_charged_its_generations_before_the_resumption(tmp_path
     """A run killed after its first checkpoint and resumed is charged the generations its checkpoint holds
     (metrics.csv's generation_seconds, as recorded before the kill) beside the resumed call's own time; a
     generation trained past the checkpoint, trained again, is not counted twice."""
-    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=3, overrides=SMALL)
+    # a 3v2 source at test_run_loop.py's NEAT shapes (SMALL): the programs that file compiles, not 4v3's of its own
+    protocol = t3.Protocol(seed=3, test_trials=4, source_generations=3, target_generations=2, overrides=SMALL)
     run = tmp_path / "run"
-    cfg = t3.config(protocol, t3.RunSpec("neat", "none", "target", "4v3", 0), tmp_path)
+    cfg = t3.config(protocol, t3.RunSpec("neat", "fitness", "source", "3v2", 0), tmp_path)
 
     def dying(line):
         if re.search(r"gen +2/3", line):

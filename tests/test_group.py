@@ -225,6 +225,8 @@ def assert_first_generation_alone(cfgs, state, rows):
             np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
+@pytest.mark.slow  # ~30 s on CI: HyperNEAT's generation step compiled for the group and alone; the default suite plays
+# a group's runs one a call (split, played and put back in run order) in the NEAT test below
 def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(monkeypatch):
     """On a CPU a group plays its runs' episodes in calls whose substrate tables fit CPU_TABLE_BYTES (one
     run a call at the paper's sizes); forced here at test sizes, every row and run state is still each

@@ -50,13 +50,19 @@ KEYS = 16  # every test's batch of keys: one program for all of them (a batch of
 
 
 @functools.lru_cache(maxsize=None)
+@functools.lru_cache(maxsize=None)
+def _tell_on_keys():
+    return jax.jit(jax.vmap(lambda k, pop, s, st, prm, fit: alg.tell(k, pop, s, st, prm, CFG, fitness=fit),
+                            in_axes=(0, None, None, None, None, None)))
+
+
 def _tell_keys(with_fitness=False):
-    """tell over a batch of :data:`KEYS` keys for one state and score (and task fitness), jitted once."""
+    """tell over a batch of :data:`KEYS` keys for one state and score (and task fitness), compiled once: without a
+    task fitness the score is passed as it, which is what ``fitness=None`` means (``alg.tell``), so one program
+    serves both (``fitness=None`` itself runs in test_neat.py)."""
     if with_fitness:
-        return jax.jit(jax.vmap(lambda k, pop, s, st, prm, fit: alg.tell(k, pop, s, st, prm, CFG, fitness=fit),
-                                in_axes=(0, None, None, None, None, None)))
-    return jax.jit(jax.vmap(lambda k, pop, s, st, prm: alg.tell(k, pop, s, st, prm, CFG),
-                            in_axes=(0, None, None, None, None)))
+        return _tell_on_keys()
+    return lambda k, pop, s, st, prm: _tell_on_keys()(k, pop, s, st, prm, s)
 
 
 def test_parents_come_from_the_top_of_their_species_and_every_top_member_breeds():

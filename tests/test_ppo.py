@@ -189,15 +189,17 @@ def test_an_iteration_rollouts_update_learns_from_its_decisions_alone_and_limits
                    for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
 
     assert apart(plain, updated()[0]) == 0.0  # deterministic
-    # a limit that does not bind: the same update (another program: its sums may round apart in the last bit);
-    # one that binds: fewer steps of gradient, on the same episodes
-    assert apart(plain, updated(learn_per_episode=10_000, max_minibatches=4)[0]) < 1e-6
+    # a limit that binds: fewer steps of gradient, on the same episodes (one that does not bind gives the same
+    # update: test_max_minibatches_binds_or_changes_nothing, slow, since it is one more program to compile)
     other = updated(learn_per_episode=1)[0]
     assert apart(plain, other) > 1e-4 and int(other.decisions) == decided
 
 
-@pytest.mark.slow  # two more programs to compile: the default suite checks learn_per_episode's limit
+@pytest.mark.slow  # three more programs to compile: the default suite checks learn_per_episode's limit that binds
 def test_max_minibatches_binds_or_changes_nothing():
+    """max_minibatches that binds gives another update on the same decisions; limits that do not bind
+    (max_minibatches and learn_per_episode) give the same update (another program: its sums may round apart in
+    the last bit)."""
     sim, params = KeepAwayConfig(), KeepAwayParams(kick_noise_deg=10.0)
 
     def updated(**kw):
@@ -207,10 +209,13 @@ def test_max_minibatches_binds_or_changes_nothing():
         learner = ppo.init(jax.random.key(0), cfg, env, params)
         return jax.jit(ppo.make_update(cfg, env, params))(learner, jax.random.key(1), jnp.float32(1e-3))[0]
 
+    def apart(a, b):
+        return max(float(np.abs(np.asarray(x) - np.asarray(y)).max())
+                   for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
+
     a, b = updated(), updated(max_minibatches=1)
-    gap = max(float(np.abs(np.asarray(x) - np.asarray(y)).max())
-              for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params)))
-    assert gap > 1e-4 and int(a.decisions) == int(b.decisions)
+    assert apart(a, b) > 1e-4 and int(a.decisions) == int(b.decisions)
+    assert apart(a, updated(learn_per_episode=10_000, max_minibatches=4)) < 1e-6
 
 
 def test_bad_rollout_settings_are_refused_with_the_field_named():
