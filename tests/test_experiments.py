@@ -490,7 +490,9 @@ def _committed_sources(tmp_path):
     protocol = t3.Protocol(seed=3, test_trials=4, source_generations=2, target_generations=2, overrides=SMALL)
     out = tmp_path / "t3"
     to_4v3 = t3.plan(("neat",), ("4v3",), ("fitness",), runs=2)
-    t3.run(out, protocol, [s for s in to_4v3 if s.phase == "source"], log=lambda s: None)
+    # one run a call: the programs of a run alone at test_run_loop.py's NEAT shapes (SMALL), which the resumed-run test
+    # below and test_run_loop.py compile too (a group of two would compile its own)
+    t3.run(out, protocol, [s for s in to_4v3 if s.phase == "source"], log=lambda s: None, batch=1)
     committed = {n: (out / n).read_bytes() for n in ("results.csv", "protocol.json")}
     assert set(json.loads(committed["protocol.json"])) >= {"test_states", "design", "seed"}
     shutil.rmtree(out / "runs")
