@@ -6,6 +6,7 @@ to takers for every team size from 3v2 to 6v4, and PPO training it (``kx.evolve.
 deterministically in
 3v2 and 6v4."""
 
+import functools
 import math
 
 import jax
@@ -20,10 +21,16 @@ from kx.sim.types import KeepAwayConfig, KeepAwayParams
 TASKS = [(3, 2), (4, 3), (5, 3), (6, 4)]
 
 
-def _states(k: int, t: int, n: int = 16):
+@functools.lru_cache(maxsize=None)
+def _env(k: int, t: int):
+    """The entity environment of a team size and its batched reset, jitted once (one program, not op by op)."""
     env = gym.KeepAway(KeepAwayConfig(n_keepers=k, n_takers=t), "entities")
-    # one program, not op by op
-    _, state = jax.jit(env.reset_batch, static_argnums=1)(jax.random.key(k * 10 + t), n, KeepAwayParams())
+    return env, jax.jit(env.reset_batch, static_argnums=1)
+
+
+def _states(k: int, t: int, n: int = 16):
+    env, reset = _env(k, t)
+    _, state = reset(jax.random.key(k * 10 + t), n, KeepAwayParams())
     return env, state
 
 
@@ -83,8 +90,8 @@ def test_the_entity_environment_steps_the_world_as_the_fixed_one_with_the_same_p
     config = KeepAwayConfig(n_keepers=4, n_takers=3)
     fixed, ent = gym.KeepAway(config), gym.KeepAway(config, "entities")
     params = KeepAwayParams()
-    _, sf = fixed.reset_batch(jax.random.key(1), 32, params)
-    _, se = ent.reset_batch(jax.random.key(1), 32, params)
+    _, sf = jax.jit(fixed.reset_batch, static_argnums=1)(jax.random.key(1), 32, params)  # a program, not op by op
+    _, se = jax.jit(ent.reset_batch, static_argnums=1)(jax.random.key(1), 32, params)
     step_f, step_e = jax.jit(fixed.step_batch_env), jax.jit(ent.step_batch_env)
     rng = np.random.default_rng(0)
     for _ in range(12):
@@ -100,20 +107,27 @@ def test_the_entity_environment_steps_the_world_as_the_fixed_one_with_the_same_p
         np.testing.assert_array_equal(rf, re_)
 
 
+NET = ppo.EntityActorCritic(hidden=32, heads=4, blocks=2)
+_apply = jax.jit(NET.apply)  # one program a shape, shared by the tests below (op by op, each op compiles apart)
+
+
 def _net_and_obs(k: int, t: int, seed: int = 0):
-    env, state = _states(k, t, 8)
+    env, state = _states(k, t)
     obs = entities.batch_first(entities.tokens(state.world, env.config))
-    net = ppo.EntityActorCritic(hidden=32, heads=4, blocks=2)
-    return net, obs
+    return NET, jax.tree.map(lambda a: a[:8], obs)
+
+
+def _params(obs):
+    """The network's weights, with larger output weights than the initial 0.01 so that a wrong ordering shows."""
+    params = jax.jit(NET.init)(jax.random.key(0), jax.tree.map(lambda a: a[0], obs))
+    return jax.tree.map(lambda a: a * 50.0 if a.ndim == 2 and a.shape[-1] == 1 else a, params)
 
 
 def test_the_entity_network_follows_its_teammates_ignores_the_takers_order_and_fits_every_team_size():
     net, obs3 = _net_and_obs(3, 2)
-    params = net.init(jax.random.key(0), jax.tree.map(lambda a: a[0], obs3))
-    # larger output weights than the initial 0.01, so that a wrong ordering would show
-    params = jax.tree.map(lambda a: a * 50.0 if a.ndim == 2 and a.shape[-1] == 1 else a, params)
+    params = _params(obs3)
     rng = np.random.default_rng(1)
-    apply = jax.jit(net.apply)
+    apply = _apply
     for k, t in TASKS:
         _, obs = _net_and_obs(k, t)
         logits, value = apply(params, obs)  # the same weights for every team size
@@ -150,16 +164,14 @@ def test_ppo_trains_the_entity_network_the_same_way_twice(k, t):
 def test_a_smaller_team_padded_among_a_bigger_ones_decides_as_it_does_alone():
     """3v2 tokens padded to 4v3's sizes with their masks (mixed_tokens) give the 3v2 logits on the teammates that
     are there, and a pass to an absent one is never sampled; the 4v3 episodes of the batch are untouched."""
-    net = ppo.EntityActorCritic(hidden=16, heads=2, blocks=2)
     _, small = _net_and_obs(3, 2)
     _, big = _net_and_obs(4, 3)
-    params = net.init(jax.random.key(0), jax.tree.map(lambda a: a[0], small))
-    params = jax.tree.map(lambda a: a * 50.0 if a.ndim == 2 and a.shape[-1] == 1 else a, params)
+    params = _params(small)
     mixed = ppo.mixed_tokens([small, big])
     assert mixed["mates"].shape == (16, 3, 6) and mixed["mate_mask"][:8].sum(axis=1).tolist() == [2] * 8
-    logits, value = net.apply(params, mixed)
-    alone_small, v_small = net.apply(params, small)
-    alone_big, v_big = net.apply(params, big)
+    logits, value = _apply(params, mixed)
+    alone_small, v_small = _apply(params, small)
+    alone_big, v_big = _apply(params, big)
     np.testing.assert_allclose(logits[:8, :3], alone_small, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(value[:8], v_small, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(logits[8:], alone_big, rtol=1e-5, atol=1e-5)
