@@ -235,7 +235,9 @@ def test_jit_equals_no_jit():
 
 
 def test_vmap_equals_batch_last_and_loop():
-    cfg = KeepAwayConfig.from_task("5v3")
+    # 3v2: the vmapped step compiles in about half 5v3's time (10 s against 18 s cold, loaded); the other team sizes'
+    # steps are checked against the reference in test_reference.py
+    cfg = KeepAwayConfig.from_task("3v2")
     s = env.reset_batch(jax.random.key(4), 12, PARAMS, cfg)
     a = jnp.where(jnp.arange(12) % 3 == 0, s.holder, (s.holder + 2) % cfg.n_keepers)
     noise = jnp.zeros(12, jnp.int32)

@@ -526,12 +526,14 @@ def test_a_structural_mutation_without_a_free_column_is_counted_by_its_kind():
     params = NEATParams(add_node_prob=1.0, add_link_prob=0.0)
     g = gn.initial_genome(jax.random.key(0), config, params)  # 8 genes in columns 0..7
     # Genome 0 splits link 0 into columns 8 and 9: every column is now in use in the population.
-    g0 = gn.apply_structure(jax.random.key(1), g, gn.ADD_NODE, jnp.int32(0), jnp.int32(-1), jnp.int32(6),
-                            jnp.int32(8), jnp.int32(9), jnp.int32(8), jnp.int32(9), params, config)
+    # jitted: op by op, the mutation's hundreds of operations each compiled apart cost more
+    g0 = jax.jit(functools.partial(gn.apply_structure, config=config))(
+        jax.random.key(1), g, gn.ADD_NODE, jnp.int32(0), jnp.int32(-1), jnp.int32(6), jnp.int32(8), jnp.int32(9),
+        jnp.int32(8), jnp.int32(9), params)
     pop = jax.tree.map(lambda a, b: jnp.stack([a, b]), g0, g)
     frozen = jnp.array([True, False])
-    new, _, next_innov, counters = inn.mutate_population(jax.random.key(2), pop, frozen, jnp.int32(7),
-                                                        jnp.int32(10), params, config)
+    new, _, next_innov, counters = jax.jit(functools.partial(inn.mutate_population, config=config))(
+        jax.random.key(2), pop, frozen, jnp.int32(7), jnp.int32(10), params)
     assert (int(counters.node_overflow), int(counters.link_overflow), int(next_innov)) == (1, 0, 10)
     chex.assert_trees_all_equal(one(new, 1).conn_valid, g.conn_valid)
     assert ck.check_population(new, config) == []
