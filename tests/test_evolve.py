@@ -1,5 +1,7 @@
 """NEAT networks as keep-away policies."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -17,12 +19,14 @@ from kx.sim.types import KeepAwayConfig, KeepAwayParams
 def test_neat_policy_acts_on_each_lanes_own_network():
     sim, params = KeepAwayConfig.from_task("4v3"), KeepAwayParams()
     config, nparams = presets.keepaway(population_size=8, species_capacity=4)
-    state = alg.init(jax.random.key(0), nparams.replace(weight_init_range=5.0, target_species=4), config)
+    # (jitted: op by op, their hundreds of operations each compile apart)
+    state = jax.jit(functools.partial(alg.init, config=config))(
+        jax.random.key(0), nparams.replace(weight_init_range=5.0, target_species=4))
     nets = alg.build_networks(state.population, config)  # [8, ...]
-    starts = env.reset_batch(jax.random.key(1), 8, params, sim)
+    starts = jax.jit(env.reset_batch, static_argnums=(1, 3))(jax.random.key(1), 8, params, sim)
     policy = neat_policy(sim, config)
     batch_last = jax.tree.map(lambda x: jnp.moveaxis(x, 0, -1), nets)
-    actions = np.asarray(policy.apply(batch_last, starts, None))
+    actions = np.asarray(jax.jit(lambda n, s: policy.apply(n, s, None))(batch_last, starts))
     for i in range(8):
         s_i = jax.tree.map(lambda x: x[..., i], starts)
         x_i = observe.fixed_obs(s_i, sim)[:, None]

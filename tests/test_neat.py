@@ -232,9 +232,10 @@ def test_structural_mutations_keep_the_hidden_slots_in_topological_order():
     g = gn.initial_genome(jax.random.key(0), config, params)  # 0->3, 1->3, 2->3 in columns 0, 1, 2
     i32 = lambda v: jnp.asarray(v, jnp.int32)
     hidden = lambda g: list(np.asarray(g.node_id)[config.n_fixed:])
-    add = lambda k, kind, key1, key2, nid, col: gn.apply_structure(
+    structure = jax.jit(functools.partial(gn.apply_structure, config=config))  # one program, not op by op
+    add = lambda k, kind, key1, key2, nid, col: structure(  # noqa: E731
         jax.random.key(k), g, kind, i32(key1), i32(key2), i32(nid), i32(10 + col), i32(11 + col), i32(col),
-        i32(col + 1), params, config)
+        i32(col + 1), params)
     g = add(1, gn.ADD_NODE, 0, -1, 4, 3)  # 0 -> 4 -> 3 in columns 3, 4
     g = add(2, gn.ADD_NODE, 1, -1, 5, 5)  # 1 -> 5 -> 3 in columns 5, 6
     assert hidden(g) == [4, 5, -1, -1] and ck.check_genome(g, config) == []
