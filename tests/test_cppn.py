@@ -191,10 +191,11 @@ HIDDEN_ACTS = ("gaussian", "sine", "abs")
 def _cppn_with_hidden_nodes():
     g = gn.initial_genome(jax.random.key(0), CONFIG, PARAMS)
     i32 = lambda v: jnp.asarray(v, jnp.int32)
+    structure = jax.jit(functools.partial(gn.apply_structure, config=CONFIG))  # one program, not op by op
     for j, col in enumerate((0, 4, 8)):
         nid, c = CONFIG.n_fixed + j, G + 2 * j
-        g = gn.apply_structure(jax.random.key(j), g, gn.ADD_NODE, i32(col), i32(-1), i32(nid), i32(c), i32(c + 1),
-                               i32(c), i32(c + 1), PARAMS, CONFIG)
+        g = structure(jax.random.key(j), g, gn.ADD_NODE, i32(col), i32(-1), i32(nid), i32(c), i32(c + 1), i32(c),
+                      i32(c + 1), PARAMS)
     hid = np.asarray(g.node_kind) == HIDDEN
     acts = np.asarray(g.node_act).copy()
     acts[hid] = [CONFIG.act_id(a) for a in HIDDEN_ACTS]

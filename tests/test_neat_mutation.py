@@ -156,10 +156,11 @@ def hidden_population():
     """N copies of a genome with 3 hidden nodes (splits of links 0, 1, 2), their activations drawn at random."""
     g = gn.initial_genome(jax.random.key(0), ACT, NEATParams())
     i32 = lambda v: jnp.asarray(v, jnp.int32)
+    structure = jax.jit(functools.partial(gn.apply_structure, config=ACT))  # one program, not op by op
     for j, col in enumerate((0, 1, 2)):
         nid, c = ACT.n_fixed + j, ACT.n_initial_conns + 2 * j
-        g = gn.apply_structure(jax.random.key(j), g, gn.ADD_NODE, i32(col), i32(-1), i32(nid), i32(c), i32(c + 1),
-                               i32(c), i32(c + 1), NEATParams(), ACT)
+        g = structure(jax.random.key(j), g, gn.ADD_NODE, i32(col), i32(-1), i32(nid), i32(c), i32(c + 1), i32(c),
+                      i32(c + 1), NEATParams())
     hid = np.asarray(g.node_kind) == HIDDEN
     assert hid.sum() == 3
     pop = jax.tree.map(lambda x: jnp.broadcast_to(x, (N,) + x.shape), g)
