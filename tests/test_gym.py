@@ -14,6 +14,7 @@ from kx.sim.types import KeepAwayConfig, KeepAwayParams
 CFG = KeepAwayConfig()  # 3v2
 PARAMS = KeepAwayParams(kick_noise_deg=10.0)
 ENV = gym.KeepAway(CFG)
+RESET_BATCH = jax.jit(ENV.reset_batch, static_argnums=1)  # one program a batch size, not op by op
 
 
 def _same(a, b):
@@ -134,9 +135,9 @@ def test_the_batched_step_is_the_per_episode_step_with_the_same_decisions():
     other episodes of the batch do (some fly a pass for several iterations while others hold)."""
     n = 12
     key = jax.random.key(21)
-    obs_b, batch = ENV.reset_batch(key, n, PARAMS)
+    obs_b, batch = RESET_BATCH(key, n, PARAMS)
     keys = jax.random.split(key, n)
-    obs_1, states = jax.vmap(ENV.reset, in_axes=(0, None))(keys, PARAMS)
+    obs_1, states = jax.jit(jax.vmap(ENV.reset, in_axes=(0, None)))(keys, PARAMS)
     np.testing.assert_array_equal(obs_b, obs_1)
     step_b = jax.jit(ENV.step_batch_env)
     step_1 = jax.jit(ENV.step_env)
@@ -163,7 +164,7 @@ def test_the_batched_step_is_the_per_episode_step_with_the_same_decisions():
 def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
     short = KeepAwayParams(kick_noise_deg=10.0, max_iterations=2)
     n, resets = 6, 4
-    _, batch = ENV.reset_batch(jax.random.key(0), n, short)
+    _, batch = RESET_BATCH(jax.random.key(0), n, short)
     key = jax.random.key(5)
     # every episode ends at its second iteration: all six at once, more than the four starts drawn
     step = jax.jit(ENV.step_batch, static_argnums=4)
@@ -171,7 +172,7 @@ def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
         _, batch, _, done, info = step(key, batch, jnp.zeros(n, jnp.int32), short, resets)
     assert bool(done.all()) and int(info["shared_starts"]) == n - resets
     k_starts, _ = jax.random.split(key)
-    _, fresh = ENV.reset_batch(k_starts, resets, short)
+    _, fresh = RESET_BATCH(k_starts, resets, short)
     for i in range(n):  # the i-th episode to end takes start i (mod resets), with a noise word of its own
         _same(jax.tree.map(lambda a: a[..., i], batch.world), jax.tree.map(lambda a: a[..., i % resets], fresh.world))
         assert int(batch.world.t[i]) == 0 and not bool(batch.world.done[i])
@@ -185,7 +186,7 @@ def test_iterating_one_world_iteration_at_a_time_plays_the_smdp_steps():
     worlds at every decision, each SMDP step's reward the sum of its iterations' and its end at the same
     step, however the batch's episodes interleave their passes."""
     n, steps = 10, 25
-    _, start = ENV.reset_batch(jax.random.key(8), n, PARAMS)
+    _, start = RESET_BATCH(jax.random.key(8), n, PARAMS)
     step = jax.jit(ENV.step_batch_env)
     iterate = jax.jit(ENV.iterate_batch, static_argnums=4)
     land = jax.jit(ENV.land_batch, static_argnums=3)
@@ -250,7 +251,7 @@ def test_a_training_loop_written_for_gymnax_runs_on_it_unchanged():
     assert int(params.max_steps_in_episode) == 60 and envx.name == "KeepAway-3v2"
     act_space, obs_space = envx.action_space(params), envx.observation_space(params)
     n, steps, gamma = 16, 30, 0.99
-    reset = jax.vmap(envx.reset, in_axes=(0, None))
+    reset = jax.jit(jax.vmap(envx.reset, in_axes=(0, None)))
     step = jax.vmap(envx.step, in_axes=(0, 0, 0, None))
     obs, state = reset(jax.random.split(jax.random.key(0), n), params)
     w = jnp.zeros((obs_space.shape[0], act_space.n))
