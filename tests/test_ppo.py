@@ -252,12 +252,17 @@ def test_the_evaluators_greedy_decision_is_the_trained_networks(hidden):
 
     sim, params = KeepAwayConfig(), KeepAwayParams(kick_noise_deg=10.0)
     net = ppo.ActorCritic(hidden=hidden)
+    # each a program (op by op, their operations each compile apart)
+    obs_of = jax.jit(observe.fixed_obs, static_argnums=1)
+    decode = jax.jit(observe.decode_ranked, static_argnums=2)
+    play = jax.jit(lambda table, states: greedy_policy(sim, hidden).apply(
+        Shared(table, jnp.zeros(400, jnp.int32)), states, None))
     for seed in range(3):
         weights = net.init(jax.random.key(seed), jnp.zeros(13))
         # weights far from the small initial actor's, so that the logits differ clearly between actions
         weights = jax.tree.map(lambda a: a * 30.0, weights)
         states = env.reset_batch(jax.random.key(100 + seed), 400, params, sim)
-        x = observe.fixed_obs(states, sim)  # [13, 400]
+        x = obs_of(states, sim)  # [13, 400]
         want, _ = net.apply(weights, x.T)
         got = ppo.actor_logits_batch_last(weights, x)
         np.testing.assert_allclose(np.asarray(got).T, np.asarray(want), rtol=1e-5, atol=1e-5)
@@ -265,8 +270,8 @@ def test_the_evaluators_greedy_decision_is_the_trained_networks(hidden):
         clear = (top[:, -1] - top[:, -2]) > 1e-4  # no near-tie that the float tolerance could flip
         assert clear.sum() >= 390
         table = jax.tree.map(lambda a: a[None], weights)
-        acts = greedy_policy(sim, hidden).apply(Shared(table, jnp.zeros(400, jnp.int32)), states, None)
-        expect = observe.decode_ranked(jnp.asarray(want).T, states, sim)
+        acts = play(table, states)
+        expect = decode(jnp.asarray(want).T, states, sim)
         np.testing.assert_array_equal(np.asarray(acts)[clear], np.asarray(expect)[clear])
         assert len(set(np.asarray(jnp.argmax(want, axis=-1)).tolist())) > 1  # more than one action taken
 
