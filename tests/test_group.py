@@ -253,17 +253,19 @@ def test_a_hyperneat_group_played_a_run_a_call_computes_what_its_runs_do_alone(m
 def test_a_neat_group_plays_each_run_in_its_own_network_shape_and_computes_what_its_runs_do_alone(monkeypatch):
     """NEAT's networks keep the hidden rows their genomes need; a group plays its runs in one evaluator
     call per shape (kx.evolve.trainer.RunGroup._param_parts), so a run is never played in a larger shape
-    than alone. Forced here (run 1's shape first, then run 0's: the results put back in run order), every
+    than alone. Forced here (the smallest shape first: the results put back in run order), every
     row and run state is still each run's alone (each call has one run: the widths the runs alone use)."""
-    cfgs = [_cfg("neat", s, "generations=1") for s in SEEDS[:2]]
+    # the batched group test's configs: its group's and its runs' programs, not others of their own
+    cfgs = [_cfg("neat", s, "generations=1", "trials=2", "validation_trials=4", "sim.max_iterations=60")
+            for s in SEEDS]
     group = trainer_lib.RunGroup.from_configs(cfgs)
     monkeypatch.setattr(type(group.encoding), "policy_shape",
-                        lambda self, population: np.array([8, 4][:jax.tree.leaves(population)[0].shape[0]]))
+                        lambda self, population: np.array([8, 4, 6][:jax.tree.leaves(population)[0].shape[0]]))
     calls = []
     evaluate = trainer_lib.ev.evaluate
     monkeypatch.setattr(trainer_lib.ev, "evaluate", lambda *a, **k: calls.append(k["key"].shape) or evaluate(*a, **k))
     state, rows = group.step(group.init())
-    assert calls == [(1,), (1,)] * 2  # run 1's shape, then run 0's; then their validation the same way
+    assert calls == [(1,)] * 3 * 2  # run 1's shape, run 2's, then run 0's; then their validation the same way
     assert_first_generation_alone(cfgs, state, rows)
 
 
