@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import jax
+import ml_collections
 import numpy as np
 import pytest
 
@@ -296,3 +297,16 @@ def test_a_config_path_resolves_to_a_file_first_then_to_the_shipped_config_of_th
     for bad in ("configs/nope.py", "elsewhere/neat_4v3.py"):
         with pytest.raises(cfg_lib.ConfigError, match=r"--config: no config file .*neat_3v2\.py"):
             cfg_lib.resolve(bad)
+
+
+def test_overrides_give_a_new_config_that_prints_and_leave_the_given_one_as_it_was():
+    """apply_overrides copies: the config it was given keeps its values (nested ones too), and what it returns is a
+    plain ConfigDict that prints its fields (the flag's unprinted stand-in does not leak out)."""
+    base = cfg_lib.base_config()
+    want = base.to_dict()
+    out = cfg_lib.apply_overrides(base, ["sim.max_iterations=77", "seed=4", "gif=false"])
+    assert base.to_dict() == want
+    assert (out.sim.max_iterations, out.seed, out.gif) == (77, 4, False)
+    assert type(out) is ml_collections.ConfigDict and "max_iterations: 77" in str(out)
+    assert {k: v for k, v in cfg_lib.flatten(out.to_dict()).items() if k not in ("sim.max_iterations", "seed", "gif")} \
+        == {k: v for k, v in cfg_lib.flatten(want).items() if k not in ("sim.max_iterations", "seed", "gif")}

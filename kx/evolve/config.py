@@ -176,7 +176,8 @@ _KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a st
 
 def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections.ConfigDict:
     """``cfg`` with ``field=value`` overrides applied by ml_collections' ``config_flags`` (values parsed
-    by the type of the field they replace: ``seed=3``, ``gif=false``, ``neat.add_node_prob=0.05``)."""
+    by the type of the field they replace: ``seed=3``, ``gif=false``, ``neat.add_node_prob=0.05``): a new config,
+    ``cfg`` left as it was."""
     from absl import flags
     from ml_collections import config_flags
 
@@ -196,7 +197,8 @@ def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections
     fv = flags.FlagValues()
     # (the flag holds the config as an _Unprinted: absl writes a flag's default into its help text, and the whole
     # config's str, a YAML dump, twice a load, was three quarters of a load's time)
-    config_flags.DEFINE_config_dict("config", _Unprinted(cfg), flag_values=fv, lock_config=False, sys_argv=argv)
+    config_flags.DEFINE_config_dict("config", _Unprinted(copy.deepcopy(cfg)), flag_values=fv, lock_config=False,
+                                    sys_argv=argv)
     try:
         fv(argv)
     except flags.Error as e:
