@@ -177,7 +177,7 @@ _KIND = {bool: "true or false", int: "an integer", float: "a number", str: "a st
 def apply_overrides(cfg: ml_collections.ConfigDict, overrides) -> ml_collections.ConfigDict:
     """``cfg`` with ``field=value`` overrides applied by ml_collections' ``config_flags`` (values parsed
     by the type of the field they replace: ``seed=3``, ``gif=false``, ``neat.add_node_prob=0.05``): a new config,
-    ``cfg`` left as it was."""
+    ``cfg`` left as it was (``cfg`` itself when there are no overrides)."""
     from absl import flags
     from ml_collections import config_flags
 
