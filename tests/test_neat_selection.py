@@ -50,7 +50,6 @@ KEYS = 16  # every test's batch of keys: one program for all of them (a batch of
 
 
 @functools.lru_cache(maxsize=None)
-@functools.lru_cache(maxsize=None)
 def _tell_on_keys():
     return jax.jit(jax.vmap(lambda k, pop, s, st, prm, fit: alg.tell(k, pop, s, st, prm, CFG, fitness=fit),
                             in_axes=(0, None, None, None, None, None)))
