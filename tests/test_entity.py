@@ -111,7 +111,7 @@ NET = ppo.EntityActorCritic(hidden=32, heads=4, blocks=2)
 _apply = jax.jit(NET.apply)  # one program a shape, shared by the tests below (op by op, each op compiles apart)
 
 
-def _net_and_obs(k: int, t: int, seed: int = 0):
+def _net_and_obs(k: int, t: int):
     env, state = _states(k, t)
     obs = entities.batch_first(entities.tokens(state.world, env.config))
     return NET, jax.tree.map(lambda a: a[:8], obs)
