@@ -121,16 +121,19 @@ if os.environ.get("KX_TEST_PROFILE"):
     import re
 
     _PROGRAMS: list = []
-    _HITS: set = set()
+    _HIT: list = [None]  # the program whose persistent-cache hit was logged last, not yet finished
 
     class _Programs(logging.Handler):
         def emit(self, record):
             msg = record.getMessage()
             if msg.startswith("Persistent compilation cache hit for '"):
-                _HITS.add(msg.split("'")[1])
+                _HIT[0] = msg.split("'")[1]
             elif m := re.match(r"Finished XLA compilation of (.*) in ([0-9.]+) sec", msg):
+                # a hit is logged inside the compilation it ends, which then logs its seconds (the cache's read);
                 # the cache names a program jit_tell where the compile log says jit(tell)
-                _PROGRAMS.append([m[1], round(float(m[2]), 3), re.sub(r"\W", "_", m[1]).rstrip("_") in _HITS])
+                hit = re.sub(r"\W", "_", m[1]).rstrip("_") == _HIT[0]
+                _HIT[0] = None
+                _PROGRAMS.append([m[1], round(float(m[2]), 3), hit])
 
     jax.config.update("jax_log_compiles", True)
     logging.getLogger("jax").addHandler(_Programs())
