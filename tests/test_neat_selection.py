@@ -147,24 +147,27 @@ def test_stagnation_follows_the_task_fitness_and_spares_the_top_score_and_the_fi
     only one (on the score, as before, species 3 would have counted as improving and species 2 culled)."""
     state = tagged_state([6, 6, 6, 6]).replace(
         generation=jnp.int32(20),
-        species_best=jnp.full((CFG.species_capacity,), 10.0).at[2].set(50.0),
+        species_best=jnp.full((CFG.species_capacity,), 10.0, jnp.float32).at[2].set(50.0),
         species_improved=jnp.zeros((CFG.species_capacity,), jnp.int32))
     sp = np.asarray(state.species)
     fitness = jnp.asarray(np.select([sp == 0, sp == 1, sp == 2], [3.0, 11.0, 12.0], 4.0), jnp.float32)
     score = jnp.asarray(np.select([sp == 0, sp == 1, sp == 2], [20.0, 2.0, 5.0], 11.0), jnp.float32)
-    new, m = _tell(CFG)(jax.random.key(7), state.population, score, state, QUIET, fitness=fitness)
-    n_off = np.asarray(m["offspring"])[:4]
-    assert n_off[0] > 0 and n_off[1] > 0 and n_off[2] > 0 and n_off[3] == 0, n_off
-    assert int(m["stagnant_species"]) == 1 and float(m["best_fitness"]) == 12.0
-    # the records: species 1's is now its fitness 11 (not its score 2); species 0's and 2's are kept
-    assert np.asarray(new.species_best)[:3].tolist() == [10.0, 11.0, 50.0]
+    # over the file's batch of keys (its one program with a task fitness): none of this depends on the key
+    new, m = _tell_keys(True)(jax.random.split(jax.random.key(7), KEYS), state.population, score, state, QUIET,
+                              fitness)
+    for r in range(KEYS):
+        n_off = np.asarray(m["offspring"])[r, :4]
+        assert n_off[0] > 0 and n_off[1] > 0 and n_off[2] > 0 and n_off[3] == 0, (r, n_off)
+        assert int(m["stagnant_species"][r]) == 1 and float(m["best_fitness"][r]) == 12.0
+        # the records: species 1's is now its fitness 11 (not its score 2); species 0's and 2's are kept
+        assert np.asarray(new.species_best)[r, :3].tolist() == [10.0, 11.0, 50.0]
 
 
 def test_stagnation_on_the_fitness_alone_is_the_plain_step():
     """Without a separate fitness, the score is the fitness: the species of the top score is spared, a
     species whose score stalled below its record is culled."""
     state = tagged_state([8, 8, 8]).replace(
-        generation=jnp.int32(20), species_best=jnp.full((CFG.species_capacity,), 10.0),
+        generation=jnp.int32(20), species_best=jnp.full((CFG.species_capacity,), 10.0, jnp.float32),
         species_improved=jnp.zeros((CFG.species_capacity,), jnp.int32))
     sp = np.asarray(state.species)
     score = jnp.asarray(np.select([sp == 0, sp == 1], [9.0, 11.0], 5.0), jnp.float32)
