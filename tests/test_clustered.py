@@ -72,9 +72,18 @@ def test_the_clustered_statistic_by_hand_on_a_tiny_data_set():
     assert stats.clustered_van_elteren(b, a).z == pytest.approx(-r.z)
     # nothing varies: no evidence; completely apart: strong evidence (the variance does not vanish)
     flat = np.full((3, 2), 0.3)
-    assert stats.clustered_van_elteren(flat, flat).p == 1.0
+    none = stats.clustered_van_elteren(flat, flat)
+    assert (none.z, none.p, none.why) == (0.0, 1.0, stats.NOTHING_VARIES) and math.isnan(none.df)
     apart = stats.clustered_van_elteren(np.arange(60.0).reshape(20, 3) + 100, np.arange(60.0).reshape(20, 3))
-    assert apart.z > 5 and apart.p < 1e-6 and apart.poi.value == 1.0
+    assert apart.z > 5 and apart.p < 1e-6 and apart.poi.value == 1.0 and apart.why == "" and r.why == ""
+    # a shared cluster whose runs are in a pattern of strata no other cluster of its cell shares (PPO's transfer
+    # cell with source 3 in 4v3 and 5v3 only): its group of one has no degrees of freedom, so no statistic, p 1
+    lone = np.array([[0.6, 0.5, 0.2], [0.2, 0.3, 0.2], [0.6, 0.7, np.nan]])
+    r = stats.clustered_van_elteren(lone, np.arange(15.0).reshape(5, 3) / 50)
+    assert (r.z, r.p, r.why) == (0.0, 1.0, stats.LONE_CLUSTER) and math.isnan(r.df) and r.clusters == (3, 5)
+    # the same cell with the lone cluster's third run in place: the statistic is back
+    lone[2, 2] = 0.25
+    assert stats.clustered_van_elteren(lone, np.arange(15.0).reshape(5, 3) / 50).why == ""
     with pytest.raises(ValueError, match="every stratum needs values"):
         stats.clustered_van_elteren(np.array([[1.0, np.nan]]), np.array([[1.0, 2.0]]))
 

@@ -348,8 +348,8 @@ def _pooled_table(results: list[dict], family: str) -> list[str]:
         runs = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
         lines.append(f"| {_label(r['claim'])} | {', '.join(r['targets'])} | {t.clusters[0]}, {t.clusters[1]} | "
                      f"{runs} | {t.diff:+.3f} | {poi.value:.2f} [{_f(poi.low, 2)}, {_f(poi.high, 2)}] | "
-                     f"{t.z:+.2f} ({t.df:.0f}) | "
-                     f"{_p(t.p)} | {len(r['tests'])} | {_p(r['seq_p'])} | {_p(r['holm'])} | {r['power']:.0%} | "
+                     + (f"— ({t.why}) | " if t.why else f"{t.z:+.2f} ({t.df:.0f}) | ")
+                     + f"{_p(t.p)} | {len(r['tests'])} | {_p(r['seq_p'])} | {_p(r['holm'])} | {r['power']:.0%} | "
                      f"{_needed(r)} | **{r['verdict']}** |")
     return lines
 
@@ -373,7 +373,7 @@ def _verdicts(by_measure: dict) -> list[str]:
                 way = {1: "the paper's way", -1: "against the paper", 0: "neither way"}[r["way"]]
                 lines.append(f"  - {_label(r['claim'])} ({', '.join(r['targets'])}): {r['verdict']}; P(a > b) = "
                              f"{t.poi.value:.2f} [{_f(t.poi.low, 2)}, {_f(t.poi.high, 2)}] ({way}), mean difference "
-                             f"{t.diff:+.3f}, Holm p = {_p(r['holm'])}"
+                             f"{t.diff:+.3f}, Holm p = {_p(r['holm'])}" + (f" ({t.why})" if t.why else "")
                              + ("" if r["verdict"] != "not decided" else
                                 f"; power {r['power']:.0%} with these runs, {_needed(r)} runs a cell for 80%") + ".")
         lines.append("")
@@ -680,7 +680,9 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
                f"of whole clusters ({dsg['cluster_resamples']} resamples); clusters: each cell's (runs sharing a "
                f"source "
                f"count once); t (df) and p: the clustered test at the comparison's last look (its sign, the "
-               f"direction); looks: how many of the plan's looks the comparison had; sequential p: the smallest level "
+               f"direction; a dash and the reason where it has no statistic, as when a cluster's runs are in "
+               f"targets no other cluster of its cell has runs in, which leaves its variance unknown: p is then 1); "
+               f"looks: how many of the plan's looks the comparison had; sequential p: the smallest level "
                f"at which the plan rejects at one of them; Holm over the family the design fixes (claims without runs "
                f"count with p = 1); power: the probability of p < {design.ALPHA} / (the family's size) in the "
                f"observed direction, at the observed effect, resampling each cell's clusters "

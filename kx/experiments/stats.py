@@ -388,7 +388,8 @@ class Clustered:
     """``a`` against ``b`` over strata with clusters as the unit (:func:`clustered_van_elteren`): the statistic, its
     degrees of freedom and two-sided p, the normal deviate of that p (signed: what a group-sequential boundary
     reads), the averaged probability of improvement with its cluster-bootstrap 95% interval, the mean of the strata's
-    mean differences, and each cell's clusters and runs a stratum."""
+    mean differences, each cell's clusters and runs a stratum, and, where there is no statistic (``z`` 0, ``df`` NaN,
+    ``p`` 1), why not."""
 
     strata: int
     clusters: tuple[int, int]
@@ -400,6 +401,14 @@ class Clustered:
     z_equivalent: float
     poi: Interval
     diff: float
+    why: str = ""
+
+
+#: why a :class:`Clustered` has no statistic: a cluster whose runs are in a pattern of strata no other cluster of its
+#: cell shares leaves its group's part of the variance with no degrees of freedom, and so the whole variance unknown
+LONE_CLUSTER = "not estimable: a cluster alone in its pattern of targets"
+#: why not, when every run of both cells has the same rank score in every stratum
+NOTHING_VARIES = "nothing varies"
 
 
 def clustered_van_elteren(a: np.ndarray, b: np.ndarray) -> Clustered:
@@ -407,16 +416,20 @@ def clustered_van_elteren(a: np.ndarray, b: np.ndarray) -> Clustered:
     :func:`cluster_matrix`) with a cluster-robust variance, so that it holds its level when a cluster's runs in
     several strata are correlated (targets transferred from one source): t reference with Welch-Satterthwaite
     degrees of freedom, two-sided. With one run a cluster it is van Elteren's statistic with the placements'
-    variance instead of the permutation variance. p is 1 where nothing varies."""
+    variance instead of the permutation variance. Where the variance cannot be estimated (:data:`LONE_CLUSTER`) or is
+    zero (:data:`NOTHING_VARIES`) there is no statistic: ``z`` 0, ``df`` NaN, ``p`` 1, and ``why`` says which."""
     a, b = _check_cells(a, b)
     t, df = clustered_z(a[None], b[None])
     t, df = float(t[0]), float(df[0])
     p = float(clustered_p(np.array([t]), np.array([df]))[0])
     zeq = 0.0 if math.isnan(t) else math.copysign(float(scipy.stats.norm.isf(p / 2)), t)
     diffs = [np.nanmean(a[:, s]) - np.nanmean(b[:, s]) for s in range(a.shape[1])]
+    why = ""
+    if math.isnan(t):
+        why = LONE_CLUSTER if any(g.size == 1 for cell in (a, b) for g in _groups(cell)) else NOTHING_VARIES
     return Clustered(a.shape[1], (int((~np.isnan(a)).any(1).sum()), int((~np.isnan(b)).any(1).sum())),
                      tuple(int(v) for v in (~np.isnan(a)).sum(0)), tuple(int(v) for v in (~np.isnan(b)).sum(0)),
-                     0.0 if math.isnan(t) else t, df, p, zeq, clustered_improvement(a, b), float(np.mean(diffs)))
+                     0.0 if math.isnan(t) else t, df, p, zeq, clustered_improvement(a, b), float(np.mean(diffs)), why)
 
 
 def _groups(cell: np.ndarray) -> list[np.ndarray]:
