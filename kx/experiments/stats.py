@@ -179,7 +179,7 @@ def improvement_permutation_interval(a, b, permutations: int = PERMUTATIONS, lev
     x, y = _values(a), _values(b)
     if (y.size, y.tobytes()) < (x.size, x.tobytes()):
         i = _permutation_interval(y.tobytes(), x.tobytes(), permutations, level)
-        return Interval(1 - i.value, 1 - i.high, 1 - i.low)
+        return Interval(vargha_delaney(x, y), 1 - i.high, 1 - i.low)
     return _permutation_interval(x.tobytes(), y.tobytes(), permutations, level)
 
 
