@@ -145,12 +145,12 @@ PERMUTATIONS = 9999
 PERMUTATION_SEED = 0
 
 
-def _placements(v: np.ndarray, pooled: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def _placements(v: np.ndarray, pooled: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per row of ``v [R, N]`` (a split: its first ``n`` values one sample, the rest the other) with their ranks in
     the pooled sample ``pooled [R, N]``: the Brunner-Munzel effect of the second sample over the first (``P(first <
-    second) + P(equal) / 2``) and its studentised statistic ``sqrt(N) (effect - 1/2) / sigma``, where ``sigma^2`` is
-    Brunner and Munzel's variance of the placements (floored at ``N / (2 n m)`` where it is zero, as Neubert and
-    Brunner (2007) do: a complete separation or one value per sample)."""
+    second) + P(equal) / 2``), its studentised statistic ``sqrt(N) (effect - 1/2) / sigma`` and ``sigma^2``, Brunner
+    and Munzel's variance of the placements (floored at ``N / (2 n m)`` where it is zero, as Neubert and Brunner
+    (2007) do: a complete separation or one value per sample)."""
     N = v.shape[1]
     m = N - n
     first = (pooled[:, :n] - scipy.stats.rankdata(v[:, :n], axis=1)) / m
