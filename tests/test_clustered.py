@@ -110,7 +110,9 @@ CASES = [  # (clusters of a, shared, clusters of b, shared)
 ]
 
 
-@pytest.mark.parametrize("rho", [0.0, 0.3, 0.6, 0.9])
+# no correlation and the strongest in the default suite; the two between them in the slow set
+@pytest.mark.parametrize("rho", [0.0, pytest.param(0.3, marks=pytest.mark.slow),
+                                 pytest.param(0.6, marks=pytest.mark.slow), 0.9])
 def test_the_clustered_test_holds_its_level_where_targets_share_sources(rho):
     rng = np.random.default_rng(int(rho * 10) + 1)
     for na, sa, nb, sb in CASES:

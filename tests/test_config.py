@@ -3,6 +3,7 @@ network drawing that uses them, and the package and script hygiene."""
 
 import ast
 import importlib
+import json
 import math
 import pathlib
 import subprocess
@@ -244,7 +245,7 @@ SCRIPTS = sorted((ROOT / "scripts").glob("*.py"))
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=[p.name for p in SCRIPTS])
-def test_scripts_import_the_installed_kx_without_touching_sys_path(script, tmp_path):
+def test_scripts_import_the_installed_kx_without_touching_sys_path(script):
     text = script.read_text()
     assert "sys.path" not in text
     # every module the script imports, at the top or inside functions, resolves (kx from the venv)
@@ -257,10 +258,38 @@ def test_scripts_import_the_installed_kx_without_touching_sys_path(script, tmp_p
         elif isinstance(node, ast.Import):
             for alias in node.names:
                 importlib.import_module(alias.name)
-    # run from elsewhere, where only the installed kx can be found
-    out = subprocess.run([sys.executable, str(script), "--help"], capture_output=True, text=True, cwd=tmp_path,
-                         timeout=120)
-    assert out.returncode == 0 and "usage:" in out.stdout, out.stderr
+
+
+#: runs each script's ``--help`` as ``python SCRIPT --help`` does (``__main__``, its folder first on sys.path), one
+#: after another in one interpreter: what each prints, or how it failed
+_HELP_ALL = """
+import contextlib, io, json, runpy, sys, traceback
+out = {}
+for path in sys.argv[1:]:
+    buf, code = io.StringIO(), None
+    sys.argv, sys.path[0] = [path, "--help"], path.rsplit("/", 1)[0]
+    try:
+        with contextlib.redirect_stdout(buf):
+            runpy.run_path(path, run_name="__main__")
+    except SystemExit as e:
+        code = e.code
+    except BaseException:
+        code = traceback.format_exc()
+    out[path] = [code, buf.getvalue()]
+print(json.dumps(out))
+"""
+
+
+def test_every_script_prints_its_usage_run_from_elsewhere_with_the_installed_kx(tmp_path):
+    """Each script's ``--help``, run from a folder without kx, where only the installed kx can be found. The scripts
+    share one interpreter (importing jax once, not once a script); each runs as ``python SCRIPT`` runs it."""
+    done = subprocess.run([sys.executable, "-c", _HELP_ALL, *map(str, SCRIPTS)], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300)
+    assert done.returncode == 0, done.stderr
+    got = json.loads(done.stdout.strip().splitlines()[-1])
+    assert sorted(got) == sorted(map(str, SCRIPTS))
+    bad = {pathlib.Path(p).name: v for p, v in got.items() if v[0] not in (0, None) or "usage:" not in v[1]}
+    assert not bad, bad
 
 
 @pytest.mark.parametrize("path", sorted((ROOT / "configs").glob("*.py")), ids=lambda p: p.name)
