@@ -232,7 +232,8 @@ def _exploratory_sets(runs, claim, targets, dsg):
 def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> list[dict]:
     """Every claim of the families the design ``dsg`` records (:func:`kx.experiments.design.families`; default: the
     exploratory design with shared sources) with runs in both its cells in some target: the pooled test at each look the
-    comparison had (:func:`stats.clustered_van_elteren`, clusters the runs that share a source), its sequential
+    comparison had (:func:`stats.clustered_van_elteren`, clusters the runs that share a source; a cluster alone in
+    its pattern of targets waits for the next look: :func:`stats.leave_out_lone_clusters`, ``waiting``), its sequential
     p-value under the plan's looks (:func:`sequential.sequential_p`), Holm's correction over its whole family as the
     design fixes it (a claim without runs yet counts with p = 1, so a partial folder is corrected as the whole
     protocol will be), the power in the observed direction at ALPHA / the family's size with these runs and the
@@ -249,13 +250,16 @@ def pooled_tests(runs: dict, dsg: dict | None = None, power: bool = True) -> lis
                 sets, fracs = [(_matrix(runs, claim.a, targets, dsg), _matrix(runs, claim.b, targets, dsg))], (1.0,)
             else:
                 sets, fracs = _exploratory_sets(runs, claim, targets, dsg)
+            # a source not yet run in every target the others have run in waits for the next look
+            kept = [stats.leave_out_lone_clusters(a, b) for a, b in sets]
+            sets, waiting = [(a, b) for a, b, _ in kept], kept[-1][2]
             tests = [stats.clustered_van_elteren(a, b) for a, b in sets]
             z = [t.z_equivalent for t in tests]
             # the direction: the sign at the look nearest to (or furthest past) its boundary, which sets the
             # sequential p (the last look's, unless an earlier one decided)
             bounds = sequential.boundaries(design.ALPHA, tuple(fracs))
             decisive = max(range(len(z)), key=lambda k: (abs(z[k]) - bounds[k], k))
-            fam.append(dict(claim=claim, targets=targets, sets=sets, tests=tests, test=tests[-1],
+            fam.append(dict(claim=claim, targets=targets, sets=sets, tests=tests, test=tests[-1], waiting=waiting,
                             seq_p=sequential.sequential_p(z, fracs), way=int(np.sign(tests[decisive].z))))
         padded = [r["seq_p"] for r in fam] + [1.0] * (len(claims) - len(fam))
         level = design.ALPHA / len(claims)
@@ -346,7 +350,8 @@ def _pooled_table(results: list[dict], family: str) -> list[str]:
         t, poi = r["test"], r["test"].poi
         counts = sorted(set(t.n_a + t.n_b))
         runs = str(counts[0]) if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
-        lines.append(f"| {_label(r['claim'])} | {', '.join(r['targets'])} | {t.clusters[0]}, {t.clusters[1]} | "
+        lines.append(f"| {_label(r['claim'])} | {', '.join(r['targets'])} | {t.clusters[0]}, {t.clusters[1]}"
+                     + (f" (+{r['waiting'][0]}, +{r['waiting'][1]} waiting)" if any(r["waiting"]) else "") + " | "
                      f"{runs} | {t.diff:+.3f} | {poi.value:.2f} [{_f(poi.low, 2)}, {_f(poi.high, 2)}] | "
                      + (f"— ({t.why}) | " if t.why else f"{t.z:+.2f} ({t.df:.0f}) | ")
                      + f"{_p(t.p)} | {len(r['tests'])} | {_p(r['seq_p'])} | {_p(r['holm'])} | {r['power']:.0%} | "
@@ -528,6 +533,10 @@ def _design_text(dsg: dict) -> str:
              "source i, so its three targets are one cluster, and a no-transfer run is a cluster of its own; "
              if dsg["sources"] == "shared" else
              "each target run trained from a source of its own, so every run is a cluster of its own; ")
+    if dsg["sources"] == "shared":
+        text += ("a source that has run in some targets but not yet in all the others have (a cluster alone in its "
+                 "pattern of targets, whose variance has no degrees of freedom) waits for the next look, and the "
+                 "clusters column counts it as waiting; ")
     text += "Holm's correction within the paper's own comparisons (the primary family) per measure. "
     if dsg["looks"] == "planned":
         text += "One look, when every cell holds its planned runs (fixed in advance). "

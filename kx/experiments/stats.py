@@ -508,6 +508,27 @@ def clustered_van_elteren(a: np.ndarray, b: np.ndarray) -> Clustered:
                      0.0 if math.isnan(t) else t, df, p, zeq, clustered_improvement(a, b), float(np.mean(diffs)), why)
 
 
+def leave_out_lone_clusters(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """Cells ``a`` and ``b`` (``[clusters, strata]``) without the clusters alone in their pattern of strata
+    (:data:`LONE_CLUSTER`), and how many each left out: a source that has run in some of the targets while no other
+    has run in just those (a protocol that runs a source's targets one after another, between its first target run
+    and its last). Such a cluster leaves its group's part of the variance with no degrees of freedom, so with it the
+    test has no statistic; without it the test is the same test on the other clusters, which the next look reads
+    again with it. Which runs exist decides, never their values, so the test keeps its level (tests/test_clustered.py
+    checks it on data shaped like PPO's Table 3 cells). Nothing is left out, and the test says why it has no statistic,
+    where leaving the lone clusters out would leave a cell with no run in some stratum (independent runs, one of them
+    in a stratum) or none at all."""
+    a, b = _check_cells(a, b)
+    out, left = [], []
+    for cell in (a, b):
+        lone = [int(g[0]) for g in _groups(cell) if g.size == 1]
+        kept = np.delete(cell, lone, axis=0)
+        whole = bool(lone) and kept.shape[0] > 0 and bool(np.all((~np.isnan(kept)).sum(0) > 0))
+        out.append(kept if whole else cell)
+        left.append(len(lone) if whole else 0)
+    return out[0], out[1], (left[0], left[1])
+
+
 def _groups(cell: np.ndarray) -> list[np.ndarray]:
     """A cell's clusters grouped by the strata they have runs in (one group for complete shared clusters; one per
     stratum for independent runs): the bootstrap resamples within each group, so a resample keeps a stratified
