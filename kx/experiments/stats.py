@@ -523,7 +523,7 @@ def leave_out_lone_clusters(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, n
     for cell in (a, b):
         lone = [int(g[0]) for g in _groups(cell) if g.size == 1]
         kept = np.delete(cell, lone, axis=0)
-        whole = bool(lone) and kept.shape[0] > 0 and bool(np.all((~np.isnan(kept)).sum(0) > 0))
+        whole = bool(lone) and bool(np.all((~np.isnan(kept)).sum(0) > 0))  # no stratum (nor the cell) emptied
         out.append(kept if whole else cell)
         left.append(len(lone) if whole else 0)
     return out[0], out[1], (left[0], left[1])
