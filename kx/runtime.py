@@ -29,6 +29,32 @@ def cpu_flags() -> set[str]:
         return set()
 
 
+def platform_label() -> str:
+    """The platform a run was made on, as results files record it (table3's ``platform`` column): JAX's version,
+    the default backend and, on a CPU, its architecture and widest vector instruction set, on an accelerator its
+    device kind: ``jax 0.10.2 cpu x86_64 avx512``, ``jax 0.10.2 gpu NVIDIA H100 80GB HBM3``.
+
+    What it names is what a run's floating point rests on beyond kx's code and config: XLA compiles for the
+    host's instruction set, and OpenBLAS picks its kernels by it (:func:`pin_openblas_kernels`). Seen here,
+    AVX-512 CPUs (Skylake-X, Cooper Lake, Sapphire Rapids) give the same runs, and an AVX2 CPU (AMD EPYC, Zen 3)
+    gives the same heuristic episodes (``kx.bench platform``) but other PPO runs, its networks' products rounded
+    otherwise. Equal labels are expected to give the same rows; a row whose label differs from the machine
+    extending its folder is not expected to reproduce there (docs/experiments.md, "Extendable anywhere")."""
+    import platform
+
+    import jax
+
+    backend = jax.default_backend()
+    if backend == "cpu":
+        flags = cpu_flags()
+        isa = next((name for name, need in (("avx512", AVX512_KERNELS), ("avx2", {"avx2", "fma"}), ("avx", {"avx"}))
+                    if need <= flags), "")
+        where = " ".join(p for p in (platform.machine() or "unknown", isa) if p)
+    else:
+        where = jax.devices()[0].device_kind
+    return f"jax {jax.__version__} {backend} {where}"
+
+
 def pin_openblas_kernels(announce: bool = True) -> str | None:
     """Pins the OpenBLAS kernels of JAX's CPU linear algebra on CPUs with AVX-512, before they load; returns
     the kernel set pinned (None: the environment's kept).

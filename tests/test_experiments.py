@@ -11,6 +11,7 @@ import shutil
 import time
 import types
 
+import jax
 import numpy as np
 import pytest
 import scipy.stats
@@ -18,6 +19,7 @@ import statsmodels.stats.diagnostic
 import statsmodels.stats.multitest
 from statsmodels.stats.nonparametric import rank_compare_2indep
 
+from kx import runtime
 from kx.evolve import checkpoint as ckpt
 from kx.evolve.config import ConfigError, parse_seeds
 from kx.experiments import __main__ as cli
@@ -571,23 +573,36 @@ def test_a_folder_of_only_its_committed_files_refuses_an_extension_it_cannot_tru
 def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path):
     """A protocol folder as a fresh clone has it extends to a target it has no run of (4v3): its sources are
     trained again as a group, reproduce their rows, and seed the new targets. Refused: a finished source directory
-    that is not the run of its row. A re-run that does not reproduce its row is set aside and seeds nothing; the
-    rest of its group is checked all the same."""
+    that is not the run of its row. A re-run that does not reproduce its row is set aside and seeds nothing: its
+    target waits, the rest of its group is checked all the same and the other target runs."""
     f = _committed_sources(tmp_path)
     protocol, out, to_4v3, committed, edit, refused = f.protocol, f.out, f.to_4v3, f.committed, f.edit, f.refused
     src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
     # run 0's row edited where only a re-run can tell (its max fitness): both sources re-run as a group, run
-    # 0's set aside, run 1's reproduced and kept; no target runs
+    # 0's set aside, run 1's reproduced and kept; run 1's target runs, run 0's waits
     lines = []
     edit(0, max_fitness="0.5")
-    with pytest.raises(t3.RunError, match=r"1 of 2 sources do not reproduce their rows .*source \(fitness\) run 0 "
-                                          r"\(max_fitness recorded 0.5, now .*set aside in .*run00.rejected"):
+    with pytest.raises(t3.Waiting, match=r"^1 runs wait, .*this platform \(jax .*\): neat 4v3 Fitness transfer run "
+                                         r"0\. Every other run ran"):
         t3.run(out, protocol, to_4v3, log=lines.append)
     assert "2 finished sources without a run directory trained again first" in lines[0]
     assert any(ln.endswith("source (fitness) run 1: trained again, its row reproduced (every column but the times)")
                for ln in lines)
+    assert any(re.search(r"1 of 2 sources do not reproduce their rows .*source \(fitness\) run 0 \(max_fitness "
+                         r"recorded 0.5, now .*set aside in .*run00.rejected\); their targets wait", ln)
+               for ln in lines)
+    note = json.loads((src_dir / "run00.rejected" / t3.REJECTED).read_text())
+    assert note["platform"] == runtime.platform_label() and note["row"]["max_fitness"] == "0.5"
     assert (src_dir / "run00.rejected" / "config.json").is_file() and not (src_dir / "run00").exists()
-    assert ckpt.steps(src_dir / "run01") == [1, 2] and not (out / "runs" / "neat" / "target-fitness").exists()
+    assert ckpt.steps(src_dir / "run01") == [1, 2]
+    assert [r["run"] for r in t3.read_results(out / "results.csv") if r["phase"] == "target"] == ["1"]
+    # called again on the same platform against the same row: run 0 is not trained again, its target still waits
+    lines = []
+    with pytest.raises(t3.Waiting, match="^1 runs wait"):
+        t3.run(out, protocol, to_4v3, log=lines.append)
+    assert any("did not reproduce its row on this platform" in ln for ln in lines)
+    assert not any("(again)" in ln for ln in lines) and not (src_dir / "run00").exists()
+    shutil.rmtree(out / "runs" / "neat" / "target-fitness")
     (out / "results.csv").write_bytes(committed["results.csv"])
     # run 1's finished directory is not the run of a row with another curve: refused, read not computed
     refused(r"run 1: its run directory .*run01 is not the run of its row .*best_validation from generation 2",
@@ -605,6 +620,67 @@ def test_a_folder_of_only_its_committed_files_extends_to_another_target(tmp_path
     assert after.startswith(committed["results.csv"]) and after.count(b"\n") == 5  # the header, 2 sources, 2 targets
     assert [(r["phase"], r["target"]) for r in t3.read_results(out / "results.csv")[-2:]] == [("target", "4v3")] * 2
     assert (out / "protocol.json").read_bytes() == committed["protocol.json"]
+
+
+def test_a_source_that_did_not_reproduce_on_this_platform_is_not_trained_again_and_its_targets_wait(tmp_path):
+    """Sources set aside on this platform against the rows they still have (rejected.json) are not trained again:
+    their targets wait, and the call says which runs wait and where their rows were made, with nothing trained.
+    Another platform's note, or one against another row, does not count: the source is trained again there."""
+    f = _committed_sources(tmp_path)
+    out, rows = f.out, t3.read_results(f.out / "results.csv")
+    here = runtime.platform_label()
+    assert {r["platform"] for r in rows} == {here}
+    src_dir = out / "runs" / "neat" / "source-fitness" / "3v2"
+    for r in rows:
+        d = src_dir / f"run{int(r['run']):02d}.rejected"
+        d.mkdir(parents=True)
+        (d / t3.REJECTED).write_text(json.dumps({"platform": here, "row": {k: r[k] for k in t3.REPRODUCED}}))
+    lines = []
+    with pytest.raises(t3.Waiting, match=rf"^2 runs wait, their sources' rows not reproduced on this platform "
+                                         rf"\({re.escape(here)}; the rows were made on: {re.escape(here)}\): neat 4v3 "
+                                         r"Fitness transfer run 0; neat 4v3 Fitness transfer run 1\. Every other run"):
+        t3.run(out, f.protocol, f.to_4v3, log=lines.append)
+    assert sum("did not reproduce its row on this platform" in ln for ln in lines) == 2
+    assert sorted(p.name for p in (out / "runs").rglob("*") if p.is_dir() and p.name.startswith("run")) == [
+        "run00.rejected", "run01.rejected"]  # nothing trained
+    assert (out / "results.csv").read_bytes() == f.committed["results.csv"]
+    d, row = src_dir / "run00", rows[0]
+    assert t3._rejected_here(d, row, here)
+    assert not t3._rejected_here(d, row, "jax 0.0 gpu another")  # another platform may reproduce it
+    assert not t3._rejected_here(d, dict(row, max_fitness="0.5"), here)  # another row: checked again
+    assert not t3._rejected_here(src_dir / "run02", row, here)
+
+
+def test_results_files_from_before_the_platform_column_read_with_it_empty_and_gain_it_when_written(tmp_path):
+    """A results file written before ``platform`` was recorded reads with it empty (the report then says the rows
+    were made before platforms were recorded) and is written back with the column; a file lacking any other
+    column is still refused."""
+    path = tmp_path / "results.csv"
+    old = [c for c in t3.FIELDS if c != "platform"]
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, old, lineterminator="\n")
+        w.writeheader()
+        w.writerow({c: "1" for c in old})
+    (row,) = t3.read_results(path)
+    assert list(row) == list(t3.FIELDS) and row["platform"] == ""
+    csvfile.write(path, t3.FIELDS, [row])
+    assert path.read_text().splitlines()[0].endswith(",best_validation,platform")
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, old[1:], lineterminator="\n")
+        w.writeheader()
+    with pytest.raises(t3.RunError, match="not a kx table3 results file"):
+        t3.read_results(path)
+
+
+def test_the_platform_label_names_the_widest_vector_instructions_of_the_cpu(monkeypatch):
+    import platform
+
+    label = runtime.platform_label()
+    assert re.fullmatch(rf"jax \S+ cpu {re.escape(platform.machine())}( avx512| avx2| avx)?", label), label
+    for flags, isa in ((runtime.AVX512_KERNELS | {"avx2", "fma", "avx"}, " avx512"), ({"avx2", "fma", "avx"}, " avx2"),
+                       ({"avx2", "avx"}, " avx"), (set(), "")):
+        monkeypatch.setattr(runtime, "cpu_flags", lambda f=flags: f)
+        assert runtime.platform_label() == f"jax {jax.__version__} cpu {platform.machine()}{isa}"
 
 
 def test_a_resumed_run_is_charged_its_generations_before_the_resumption(tmp_path):

@@ -253,7 +253,12 @@ def _command(args: argparse.Namespace, shard) -> int:
                                    source_generations=args.source_generations,
                                    target_generations=args.target_generations, overrides=tuple(args.set))
             specs = t3.plan(args.methods, args.targets, args.setups, args.runs)
-            t3.run(args.out, protocol, specs, batch=args.batch, shard=shard)
+            try:
+                t3.run(args.out, protocol, specs, batch=args.batch, shard=shard)
+            except t3.Waiting:  # the runs that could run ran: their rows reported, then the refusal
+                if shard.leader:
+                    print(report.write(args.out))
+                raise
             if shard.leader:
                 print(report.write(args.out))
         else:

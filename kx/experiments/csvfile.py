@@ -17,18 +17,29 @@ def cell_text(v) -> str:
     return format(v, ".9g") if isinstance(v, float) else str(v)  # float32 values round-trip in 9 digits
 
 
+#: columns added to a results file's format after files were written without them, and the value an older
+#: file's rows read in them: ``platform`` (where a run was made, :func:`kx.runtime.platform_label`), recorded
+#: from 2026-12-07 on; the rows before it were made on a 2-core Intel Xeon with AVX-512 (docs/experiments.md)
+ADDED = {"platform": ""}
+
+
 def read(path: str | pathlib.Path, fields: tuple[str, ...], what: str, aliases: dict | None = None) -> list[dict]:
     """The rows (strings) of ``path`` in file order, [] when there is no file; ``RunError`` when its
-    columns are not ``fields`` (not a ``what``). ``aliases``: ``{column: {old value: value}}``, the names a file
+    columns are not ``fields`` (not a ``what``); a file written before a column of :data:`ADDED` reads with its
+    value there. ``aliases``: ``{column: {old value: value}}``, the names a file
     written before a rename holds, read as today's."""
     path = pathlib.Path(path)
     if not path.is_file():
         return []
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
-        if tuple(reader.fieldnames or ()) != tuple(fields):
+        have = tuple(reader.fieldnames or ())
+        older = have == tuple(f for f in fields if f not in ADDED) != tuple(fields)  # a file from before ADDED's
+        if have != tuple(fields) and not older:
             raise RunError(f"{path}: not a {what} (columns {reader.fieldnames}, expected {list(fields)})")
         rows = list(reader)
+    if older:
+        rows = [{k: r[k] if k in r else ADDED[k] for k in fields} for r in rows]
     for column, names in (aliases or {}).items():
         for r in rows:
             r[column] = names.get(r[column], r[column])
@@ -42,7 +53,7 @@ def write(path: str | pathlib.Path, fields: tuple[str, ...], rows: list[dict]) -
     w = csv.DictWriter(buf, fieldnames=fields, lineterminator="\n")
     w.writeheader()
     for r in rows:
-        w.writerow({k: cell_text(r[k]) for k in fields})
+        w.writerow({k: cell_text(r[k] if k in r or k not in ADDED else ADDED[k]) for k in fields})
     run_outputs.write_text(path, buf.getvalue())
 
 

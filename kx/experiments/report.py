@@ -605,6 +605,23 @@ def _withheld(out: pathlib.Path, rows: list[dict], dsg: dict) -> pathlib.Path:
     return path
 
 
+def _platforms(rows: list[dict]) -> list[str]:
+    """Where the runs were made (results.csv's ``platform``, :func:`kx.runtime.platform_label`), once a row
+    records one: a row reproduces bit for bit on its own platform, not necessarily on another."""
+    made = collections.Counter(r["platform"] for r in rows)
+    if set(made) <= {""}:
+        return []
+    def runs(p):
+        per = collections.Counter(METHOD_NAMES[r["method"]] for r in rows if r["platform"] == p)
+        return f"{made[p]} runs (" + ", ".join(f"{m} {n}" for m, n in per.items()) + ")"
+
+    parts = [f"{runs(p)} on `{p}`" for p in sorted(made) if p]
+    if made[""]:
+        parts.insert(0, f"{runs('')} before platforms were recorded (2026-12-07; AVX-512 Intel Xeon CPUs)")
+    return ["", "Platforms (a run reproduces bit for bit on its own platform; a CPU without AVX-512 rounds the "
+            "networks' products otherwise, docs/experiments.md \"Extendable anywhere\"): " + "; ".join(parts) + "."]
+
+
 def _still_to_run(rows: list[dict]) -> list[str]:
     cells = planning.still_to_run(rows)
     if not cells:
@@ -614,8 +631,8 @@ def _still_to_run(rows: list[dict]) -> list[str]:
              "(\\*: a target with no run of its method yet, costed at the method's other targets; —: no run of "
              "the method's phase to cost it by). A protocol folder holding only results.csv, protocol.json and "
              "this report extends on another machine: a missing source is trained again first and must reproduce its "
-             "row, or it is set aside and its targets do not run (docs/experiments.md, \"Extendable anywhere\", "
-             "says which machines give the same runs).", "",
+             "row, or it is set aside and its targets wait while the other runs run (docs/experiments.md, "
+             "\"Extendable anywhere\", says which machines give the same runs).", "",
              "| method | phase | task | setup | runs here | missing | hours |", "|---|---|---|---|---|---|---|"]
     for c in cells:
         setup = c["setup"] if c["phase"] == "source" else t3.SETUPS[c["setup"]].label
@@ -659,6 +676,7 @@ def write(out: str | pathlib.Path) -> pathlib.Path:
     md += [f"- {METHOD_NAMES[m]} {p}: {g} x {pop} x {tr} = {g * pop * tr:,} episodes" if g * pop * tr == ep else
            f"- {METHOD_NAMES[m]} {p}: {g} x {ep // g:,} training episodes = {ep:,} episodes"
            for m, p, g, pop, tr, ep in gens]
+    md += _platforms(rows)
     eff = efficiency(rows)
     md += ["", "Fitness is the portion of the maximum episode length (4500 grid iterations) the keepers hold the ball. "
            "The paper's numbers come from another simulator (its fitness is seconds held over a cap): compare "

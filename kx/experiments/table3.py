@@ -44,6 +44,7 @@ from typing import Callable, Iterable
 
 import ml_collections
 
+from kx import runtime
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.errors import RunError
@@ -84,13 +85,13 @@ METHOD_SETUPS = {"neat": tuple(SETUPS), "hyperneat": tuple(SETUPS), "cma_es": ("
 FIELDS = ("method", "setup", "phase", "target", "run", "seed", "source_seed", "objective", "population", "trials",
           "generations", "episodes", "source_episodes", "max_fitness", "test_fitness", "test_trials",
           "champion_generation", "protocol_seed", "wall_seconds", "generation_seconds", "best_so_far",
-          "best_validation")
+          "best_validation", "platform")
 CURVES = ("best_so_far", "best_validation")
 #: the columns a run's config fixes: a recorded row is checked against them before any compute
 PLANNED = ("seed", "source_seed", "objective", "population", "trials", "generations", "episodes", "source_episodes",
            "test_trials", "protocol_seed")
-#: the columns a run trained again must reproduce exactly: every one but the times
-REPRODUCED = tuple(f for f in FIELDS if f not in ("wall_seconds", "generation_seconds"))
+#: the columns a run trained again must reproduce exactly: every one but the times and where it ran
+REPRODUCED = tuple(f for f in FIELDS if f not in ("wall_seconds", "generation_seconds", "platform"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -325,7 +326,7 @@ def results_row(protocol: Protocol, spec: RunSpec, out: pathlib.Path, finished: 
         "champion_generation": int(finished.state.champion_generation),
         "wall_seconds": finished.wall_seconds,
         "generation_seconds": round(sum(float(r["generation_seconds"]) for r in rows) / share, 3),
-        **curves_of(rows),
+        **curves_of(rows), "platform": runtime.platform_label(),
     }
 
 
@@ -382,6 +383,30 @@ def _set_aside(d: pathlib.Path) -> pathlib.Path:
     return aside
 
 
+class Waiting(RunError):
+    """Raised by :func:`run` after every run it could run: the runs whose source did not reproduce its row here."""
+
+
+#: what a re-run source that did not reproduce its row leaves in its set-aside directory: the platform, the row
+#: it was checked against and how it differed (:func:`_rejected_here` reads it)
+REJECTED = "rejected.json"
+
+
+def _rejected_here(d: pathlib.Path, recorded: dict, here: str) -> bool:
+    """Whether the source of run directory ``d`` was trained again on this platform (``here``) against this same
+    ``recorded`` row and did not reproduce it: a set-aside directory says so (training it again would only repeat
+    that, runs being deterministic on one platform)."""
+    want = {k: recorded[k] for k in REPRODUCED}
+    for aside in sorted(d.parent.glob(d.name + ".rejected*")):
+        try:
+            note = json.loads((aside / REJECTED).read_text())
+        except (OSError, ValueError):
+            continue
+        if note.get("platform") == here and note.get("row") == want:
+            return True
+    return False
+
+
 def directory_differences(d: pathlib.Path, recorded: dict) -> list[str]:
     """Where a finished run directory's metrics.csv differs from the run's recorded row: its curves and its
     maximum training fitness (read from the files, no compute)."""
@@ -431,8 +456,10 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
 
     A folder holding only results.csv and protocol.json (a fresh clone) extends: a finished source that an
     unfinished target needs and whose run directory is missing is trained again first (runs are
-    deterministic) and must reproduce its row in every column but the times, or the protocol stops there,
-    naming the runs and the columns, with each re-run that differs set aside as ``<run>.rejected``. Before
+    deterministic on one platform) and must reproduce its row in every column but the times and the platform;
+    one that differs is set aside as ``<run>.rejected`` (with :data:`REJECTED`, so that it is not trained again on
+    the same platform), its targets wait, every other run runs, and then :class:`RunError` names the runs that
+    wait and the platforms. Before
     any compute, every config is checked, the protocol.json is the same protocol with the same test states
     (:func:`kx.experiments.design.check_folder`), each such source's row is what its config gives now
     (:data:`PLANNED`), and a recorded source's finished run directory is the run of its row (its
@@ -482,6 +509,12 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     if not shard.leader:
         design.check_folder(out, protocol, (SOURCE_TASK, *TARGETS), lambda s: None, design_record)
     rebuild = [s for s in rebuild if shard.owns(s.run)]
+    here = runtime.platform_label()
+    waiting = {s for s in rebuild if _rejected_here(run_dir(out, s), recorded[s.key], here)}
+    for src in waiting:
+        log(f"{src.describe()}: did not reproduce its row on this platform ({here}) when trained again before (set "
+            f"aside in {run_dir(out, src).name}.rejected...): not trained again; its targets wait")
+    rebuild = [s for s in rebuild if s not in waiting]
     needed: list[RunSpec] = []
     for spec in specs:
         src = source_of(spec, protocol.sources)
@@ -501,6 +534,11 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     log(f"kx table3: {total} runs, {done} done, {len(needed)} to run{grouped}{redo}{mine} -> {out}")
     for chunk in again + chunks:
         reproduce = chunk[0] in rebuild
+        if not reproduce:
+            chunk = [s for s in chunk if source_of(s, protocol.sources) not in waiting]
+            if not chunk:
+                progress.finish(0)
+                continue
         cfgs = [config(protocol, spec, out) for spec in chunk]
         dirs = [run_dir(out, spec) for spec in chunk]
         resumed = sum(measure.started(d) for d in dirs)
@@ -515,8 +553,12 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             if reproduce:  # every run of the group compared, every one that differs set aside
                 diff = differences(recorded[spec.key], row, REPRODUCED)
                 if diff:
-                    rejected.append(f"{spec.describe()} ({'; '.join(diff)}; set aside in "
-                                    f"{_set_aside(run_dir(out, spec))})")
+                    aside = _set_aside(run_dir(out, spec))
+                    run_outputs.write_text(aside / REJECTED, json.dumps(
+                        {"platform": here, "recorded_platform": recorded[spec.key]["platform"],
+                         "row": {k: recorded[spec.key][k] for k in REPRODUCED}, "differences": diff}, indent=1) + "\n")
+                    rejected.append(f"{spec.describe()} ({'; '.join(diff)}; set aside in {aside})")
+                    waiting.add(spec)
                 else:
                     log(f"[{progress.done}/{total} runs] {spec.describe()}: trained again, its row reproduced "
                         "(every column but the times)")
@@ -527,11 +569,17 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
                 f"{row['test_fitness']:.4f}")
             progress.done += 1
         if rejected:
-            raise RunError(f"trained again to seed their targets, {len(rejected)} of {len(chunk)} sources do not "
-                           f"reproduce their rows of {results_path}: {'; '.join(rejected)}; no target of them was "
-                           "run (the code or the machine gives other results than those recorded: run the "
-                           "folder's targets where it was made, or the whole protocol again in a new folder)")
+            log(f"trained again to seed their targets, {len(rejected)} of {len(chunk)} sources do not reproduce "
+                f"their rows of {results_path} on this platform ({here}): {'; '.join(rejected)}; their targets wait, "
+                "the other runs go on")
         progress.finish(0)
     rows = results.finish()
     want = {s.key for s in specs}
+    stuck = [s for s in specs if s.key not in {row_key(r) for r in rows} and source_of(s, protocol.sources) in waiting]
+    if stuck:
+        made = sorted({recorded[s.key]["platform"] or "not recorded" for s in waiting})
+        raise Waiting(f"{len(stuck)} runs wait, their sources' rows not reproduced on this platform ({here}; the rows "
+                       f"were made on: {', '.join(made)}): {'; '.join(s.describe() for s in stuck)}. Every other run "
+                       "ran. Run them where their sources were made (docs/experiments.md, \"Extendable anywhere\"), "
+                       "or the whole protocol again in a new folder")
     return [r for r in rows if row_key(r) in want]
