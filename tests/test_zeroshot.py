@@ -12,6 +12,7 @@ import shutil
 import numpy as np
 import pytest
 
+from kx import runtime
 from kx.evolve import config as cfg_lib
 from kx.evolve import run as run_lib
 from kx.evolve import streams
@@ -284,6 +285,10 @@ def test_a_tiny_study_runs_once_and_again_does_nothing(tiny, monkeypatch):
     zs.write_report(out)
     assert {f: (out / f).read_bytes() for f in report} == report
     assert "| neat | 2 (of 10) |" in report["report.md"].decode() and "not yet run" in report["report.md"].decode()
+    here = runtime.platform_label()
+    assert {r["platform"] for r in rows} == {here}  # where each run was made, and the report says so
+    assert f"Platforms (a run reproduces bit for bit on its own platform): neat seeds 0,1, cma_es seeds 0,1 on " \
+        f"`{here}`." in report["report.md"].decode()
 
 
 @pytest.mark.slow

@@ -28,6 +28,7 @@ from typing import Callable
 
 import numpy as np
 
+from kx import runtime
 from kx.evolve import config as cfg_lib
 from kx.evolve import outputs as run_outputs
 from kx.evolve.checkpoint import RunLock
@@ -49,7 +50,8 @@ TABLE3 = "docs/table3"
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 SCORES = tuple(f"test_{t}" for t in TASKS)
 FIELDS = ("learner", "config", "seed", "method", "trained", "generations", "episodes", "max_fitness",
-          "champion_generation", *SCORES, "test_trials", "test_seed", "wall_seconds", "test_seconds")
+          "champion_generation", *SCORES, "test_trials", "test_seed", "wall_seconds", "test_seconds",
+          "platform")  # where the run was made (kx.runtime.platform_label; empty before 2026-12-07: csvfile.ADDED)
 WHAT = "kx zeroshot results file"
 BASELINE_FIELDS = ("policy", "task", "test_fitness", "test_trials", "test_seed")
 
@@ -294,7 +296,7 @@ def _run(out: pathlib.Path, study: Study, cfgs: dict, log: Callable[[str], None]
                        "champion_generation": int(finished.state.champion_generation),
                        f"test_{SOURCE}": finished.test, **scores, "test_trials": study.test_trials,
                        "test_seed": study.test_seed, "wall_seconds": finished.wall_seconds,
-                       "test_seconds": round(time.perf_counter() - t0, 3)}
+                       "test_seconds": round(time.perf_counter() - t0, 3), "platform": runtime.platform_label()}
                 ledger.append(row)
                 n_done += 1
                 log(f"[{n_done}/{total} runs | {learner} seed {seed}] " + ", ".join(
@@ -327,7 +329,7 @@ def merge(out: str | pathlib.Path, other: str | pathlib.Path, log: Callable[[str
         if diff:
             raise RunError(f"{other} holds another zero-shot study than {out} ({'; '.join(diff)}); nothing was merged")
         mine, theirs = read_results(out), read_results(other)
-        fixed = [f for f in FIELDS if f not in ("config", "wall_seconds", "test_seconds")]
+        fixed = [f for f in FIELDS if f not in ("config", "wall_seconds", "test_seconds", "platform")]
         have = {_row_key(r): r for r in mine}
         clash = [k for r in theirs if (k := _row_key(r)) in have and any(have[k][f] != r[f] for f in fixed)]
         if clash:
@@ -531,6 +533,15 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
            "(`learners.<name>.resolved`); a run's seed is its seed; "
            "its training seconds are its share of its batched group's on the machine; a learner's zero-shot test "
            "seconds include the compilation of its first run's evaluations.", ""]
+    made = sorted({r["platform"] for v in by.values() for r in v["rows"]})
+    if made != [""]:  # once a row records where it was made (kx.runtime.platform_label)
+        parts = []
+        for p in made:
+            runs = [f"{n} seeds {','.join(str(r['seed']) for r in v['rows'] if r['platform'] == p)}"
+                    for n, v in by.items() if any(r["platform"] == p for r in v["rows"])]
+            where = f"on `{p}`" if p else "before platforms were recorded (2026-12-07; AVX-512 Intel Xeon CPUs)"
+            parts.append(f"{', '.join(runs)} {where}")
+        md += ["Platforms (a run reproduces bit for bit on its own platform): " + "; ".join(parts) + ".", ""]
     _plot(out, by, base, goal)
     path = out / "report.md"
     path.write_text("\n".join(md))
