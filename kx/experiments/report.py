@@ -613,7 +613,7 @@ def _platforms(rows: list[dict]) -> list[str]:
         return []
     def runs(p):
         per = collections.Counter(METHOD_NAMES[r["method"]] for r in rows if r["platform"] == p)
-        return f"{made[p]} runs (" + ", ".join(f"{m} {n}" for m, n in per.items()) + ")"
+        return f"{made[p]} run{'s' if made[p] > 1 else ''} (" + ", ".join(f"{m} {n}" for m, n in per.items()) + ")"
 
     parts = [f"{runs(p)} on `{p}`" for p in sorted(made) if p]
     if made[""]:
