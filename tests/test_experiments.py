@@ -1097,6 +1097,7 @@ def test_reproduce_trains_a_folders_runs_again_and_names_the_columns_that_differ
     assert cli.main(["reproduce", str(out), "--row", "neat,fitness,target,4v3,0"]) == 1
     printed = capsys.readouterr().out
     assert "neat,fitness,target,4v3,0: DIFFERS: max_fitness recorded 0.5, now " in printed, printed
+    assert f"; the row was made on {runtime.platform_label()}, this machine is {runtime.platform_label()}\n" in printed
     assert "reproduce: 0 of 1 rows reproduced" in printed
     with pytest.raises(ValueError, match=r"--row: allowed METHOD,SETUP,PHASE,TARGET,RUN"):
         reproduce.parse_key("neat,fitness,target,4v3")

@@ -17,6 +17,7 @@ import shutil
 import tempfile
 from typing import Callable
 
+from kx import runtime
 from kx.evolve.errors import RunError
 from kx.experiments import csvfile
 from kx.experiments import table3 as t3
@@ -46,8 +47,9 @@ def reproduce(folder: str | pathlib.Path, keys: list[tuple] | None = None, work:
               log: Callable[[str], None] = print) -> dict[tuple, list[str]]:
     """Trains the runs of ``keys`` (default :func:`default_keys`) of ``folder`` again in ``work`` (default a
     temporary folder, removed after) and returns, per key, the columns where the new row differs from the
-    committed one (empty: reproduced). Raises :class:`RunError` for a key the folder has no row of, or when a
-    source trained again to seed a target does not reproduce its row."""
+    committed one (empty: reproduced; else ending with the platform the row was made on and this one's).
+    Raises :class:`RunError` for a key the folder has no row of, or when a source trained again to seed a target
+    does not reproduce its row."""
     folder = pathlib.Path(folder)
     protocol = t3.Protocol.read(folder / "protocol.json")
     rows = t3.read_results(folder / "results.csv")
@@ -68,7 +70,14 @@ def reproduce(folder: str | pathlib.Path, keys: list[tuple] | None = None, work:
         specs = [t3.RunSpec(*k) for k in keys]
         new = {t3.row_key(r): r for r in t3.run(scratch, protocol, specs, log=log, batch=1,
                                                 design_record=_design(folder))}
-        return {k: t3.differences(committed[k], new[k], t3.REPRODUCED) for k in keys}
+        here = runtime.platform_label()
+        diffs = {k: t3.differences(committed[k], new[k], t3.REPRODUCED) for k in keys}
+        for k, d in diffs.items():  # where the rows were made: another platform is a likely cause
+            if d:
+                d.append(f"the row was made on {committed[k]['platform'] or 'a platform not recorded (before '}"
+                         f"{'' if committed[k]['platform'] else '2026-12-07: AVX-512 Intel Xeons)'}, this machine is "
+                         f"{here}")
+        return diffs
     finally:
         if work is None:
             shutil.rmtree(scratch, ignore_errors=True)
