@@ -577,7 +577,7 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     want = {s.key for s in specs}
     stuck = [s for s in specs if s.key not in {row_key(r) for r in rows} and source_of(s, protocol.sources) in waiting]
     if stuck:
-        made = sorted({recorded[s.key]["platform"] or "not recorded" for s in waiting})
+        made = sorted({recorded[s.key]["platform"] or "not recorded (before 2026-12-07)" for s in waiting})
         raise Waiting(f"{len(stuck)} runs wait, their sources' rows not reproduced on this platform ({here}; the rows "
                        f"were made on: {', '.join(made)}): {'; '.join(s.describe() for s in stuck)}. Every other run "
                        "ran. Run them where their sources were made (docs/experiments.md, \"Extendable anywhere\"), "
