@@ -330,6 +330,7 @@ def test_padding_left_out_changes_no_bit(task, image):
     assert int(length.min()) == 0 and int(length.max()) > bev.CHUNK
 
 
+@pytest.mark.slow  # ~12 s cold: the suite's 7 minutes on an AVX2 CPU
 def test_skip_idle_holds_where_nobody_reads():
     """skip_idle: the same decision wherever a holder has the ball in a running episode, hold elsewhere;
     the evaluator's episodes are the same bit for bit."""

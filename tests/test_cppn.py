@@ -305,6 +305,7 @@ def _check_cppns(pop):
     assert np.all(act[kind == 3] == CONFIG.act_id("bipolar_sigmoid"))  # outputs keep theirs
 
 
+@pytest.mark.slow  # ~11 s cold: the suite's 7 minutes on an AVX2 CPU
 def test_cppn_lineages_under_the_preset_stay_valid():
     states, metrics = _run()
     # 60 generations x 150 offspring = 9000 mutations and crossovers

@@ -184,6 +184,7 @@ def test_a_smaller_team_padded_among_a_bigger_ones_decides_as_it_does_alone():
     assert int(draws.max()) <= 2
 
 
+@pytest.mark.slow  # ~25 s cold: mixed batches' tokens are the default suite's (test_a_smaller_team_padded_among_...)
 def test_ppo_trains_on_a_mix_of_team_sizes_in_every_batch():
     cfg = ppo.PPOConfig(num_envs=16, num_steps=8, updates=2, network="entity", hidden=16, heads=2, mix=("4v3",),
                         resets=4)

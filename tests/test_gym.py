@@ -180,6 +180,7 @@ def test_the_batched_step_gives_ended_episodes_the_drawn_starts_in_order():
     assert len(set(words.tolist())) == n
 
 
+@pytest.mark.slow  # ~12 s cold: the suite's 7 minutes on an AVX2 CPU
 def test_iterating_one_world_iteration_at_a_time_plays_the_smdp_steps():
     """``iterate_batch`` (one world iteration of every episode; those at a decision act) and ``land_batch``
     (the passes in flight land) play the episodes ``step_batch_env`` plays with the same decisions: the same
@@ -237,6 +238,7 @@ def test_iterating_one_world_iteration_at_a_time_plays_the_smdp_steps():
     assert (its[waiting] == 0).all() and (its[~waiting] >= 1).all() and len(set(its[~waiting].tolist())) > 1
 
 
+@pytest.mark.slow  # ~21 s cold: the batched step's equality to the per-episode one stays in the default suite
 def test_a_training_loop_written_for_gymnax_runs_on_it_unchanged():
     """A small policy-gradient loop written against gymnax's interface alone (no kx call but the constructor):
     ``default_params``, ``action_space``/``observation_space``, ``reset`` and ``step`` vmapped, auto-reset,

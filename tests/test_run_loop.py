@@ -75,6 +75,7 @@ def _cfg(**over):
     return cfg
 
 
+@pytest.mark.slow  # ~22 s cold on an AVX2 CPU: the suite's 7 minutes (the encoding protocol's unit tests stay)
 def test_an_encoding_defined_outside_kx_trains_end_to_end(toy, tmp_path, capsys):
     cfg = _cfg()
     assert "toy.step_size: allowed a number > 0" in str(pytest.raises(
@@ -197,8 +198,10 @@ def assert_nothing_compiles_twice(per_generation, first: int):
     assert all(any(k in name for k in new_shape) for name, _ in later), [name for name, _ in later]
 
 
-@pytest.mark.parametrize("objective", ["fitness", "hybrid"])
-@pytest.mark.parametrize("method", ["neat", "hyperneat", "cma_es"])
+# HyperNEAT's fitness case (~15 s cold) with the long tests: its hybrid case stays in the default suite
+@pytest.mark.parametrize("method,objective", [
+    (m, o) if (m, o) != ("hyperneat", "fitness") else pytest.param(m, o, marks=pytest.mark.slow)
+    for m in ("neat", "hyperneat", "cma_es") for o in ("fitness", "hybrid")])
 def test_a_second_run_in_the_same_process_compiles_nothing(method, objective):
     """Programs belong to the process, keyed by the static shapes of a run, not to a Trainer: a second
     Trainer of the same method, task, shapes and objective compiles nothing at all, and a run with

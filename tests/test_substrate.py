@@ -206,6 +206,7 @@ def check_the_build_against_the_reference() -> None:
     _same_bits(sb.build(trained, enc.neat_config, enc.substrate, devices, rows, reference=True), ref)
 
 
+@pytest.mark.slow  # ~15 s cold: the build against the reference on trained genomes stays in the default suite
 def test_the_build_is_bit_for_bit_the_reference_with_every_hidden_row_and_every_bias():
     """:func:`sb.build` against the reference, every bit, under the suite's flags (in this process); the slow set
     repeats it under XLA's default flags, where the run loop compiles (the test after this one)."""
