@@ -171,6 +171,7 @@ def test_a_tiny_confirmatory_protocol_trains_a_source_of_its_own_for_every_trans
                                                                      runs=runs | {"neat/none": 2}))
 
 
+@pytest.mark.slow  # 15-40 s cold: the default suite's 7 minutes in a fresh clone on an AVX2 CPU (make test-slow)
 def test_the_committed_confirmatory_report_regenerates_byte_for_byte(tmp_path):
     committed = ROOT / "docs" / "table3_confirmatory"
     for name in ("results.csv", "protocol.json"):

@@ -182,6 +182,7 @@ def test_bad_seeds_are_refused_naming_the_flag(text):
         train_cli.parse_seeds(text)
 
 
+@pytest.mark.slow  # 15-40 s cold: the default suite's 7 minutes in a fresh clone on an AVX2 CPU (make test-slow)
 def test_a_batched_group_recompiles_nothing_across_generations_and_computes_what_its_runs_do_alone():
     """After the first two generations, a group's generation compiles only evaluator batch widths it
     reaches for the first time; and every generation of every run, its metrics row (execution figures

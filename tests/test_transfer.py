@@ -159,6 +159,7 @@ def test_cma_es_starts_at_the_source_distribution(sources, tmp_path):
     _refused(_target("cma_es", src_dir, "4v3", "transfer.seeding=half"), tmp_path, "transfer.seeding", "'half'")
 
 
+@pytest.mark.slow  # 15-40 s cold: the default suite's 7 minutes in a fresh clone on an AVX2 CPU (make test-slow)
 def test_target_run_records_its_source_and_resumes(sources, tmp_path):
     src_dir = sources("neat")
     run_dir = tmp_path / "target"
