@@ -19,8 +19,10 @@ def cell_text(v) -> str:
 
 #: columns added to a results file's format after files were written without them, and the value an older
 #: file's rows read in them: ``platform`` (where a run was made, :func:`kx.runtime.platform_label`), recorded
-#: from 2026-12-07 on; the rows before it were made on a 2-core Intel Xeon with AVX-512 (docs/experiments.md)
+#: from 2026-12-07 on; the rows before it were made on AVX-512 Intel Xeons (docs/experiments.md)
 ADDED = {"platform": ""}
+#: what the reports say of the rows with no ``platform``
+UNRECORDED = "before platforms were recorded (2026-12-07; AVX-512 Intel Xeon CPUs)"
 
 
 def read(path: str | pathlib.Path, fields: tuple[str, ...], what: str, aliases: dict | None = None) -> list[dict]:

@@ -15,7 +15,7 @@ import pathlib
 
 import numpy as np
 
-from kx.experiments import design, planning, sequential, stats
+from kx.experiments import csvfile, design, planning, sequential, stats
 from kx.experiments import table3 as t3
 
 #: The paper's Table 3 (mean (sd) over 20 runs, portion of the maximum hold time; SPEC section 6).
@@ -617,7 +617,7 @@ def _platforms(rows: list[dict]) -> list[str]:
 
     parts = [f"{runs(p)} on `{p}`" for p in sorted(made) if p]
     if made[""]:
-        parts.insert(0, f"{runs('')} before platforms were recorded (2026-12-07; AVX-512 Intel Xeon CPUs)")
+        parts.insert(0, f"{runs('')} {csvfile.UNRECORDED}")
     return ["", "Platforms (a run reproduces bit for bit on its own platform; a CPU without AVX-512 rounds the "
             "networks' products otherwise, docs/experiments.md \"Extendable anywhere\"): " + "; ".join(parts) + "."]
 

@@ -539,7 +539,7 @@ def write_report(out: str | pathlib.Path) -> pathlib.Path:
         for p in made:
             runs = [f"{n} seeds {','.join(str(r['seed']) for r in v['rows'] if r['platform'] == p)}"
                     for n, v in by.items() if any(r["platform"] == p for r in v["rows"])]
-            where = f"on `{p}`" if p else "before platforms were recorded (2026-12-07; AVX-512 Intel Xeon CPUs)"
+            where = f"on `{p}`" if p else csvfile.UNRECORDED
             parts.append(f"{', '.join(runs)} {where}")
         md += ["Platforms (a run reproduces bit for bit on its own platform): " + "; ".join(parts) + ".", ""]
     _plot(out, by, base, goal)
