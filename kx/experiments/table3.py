@@ -575,7 +575,8 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
         progress.finish(0)
     rows = results.finish()
     want = {s.key for s in specs}
-    stuck = [s for s in specs if s.key not in {row_key(r) for r in rows} and source_of(s, protocol.sources) in waiting]
+    have = {row_key(r) for r in rows}
+    stuck = [s for s in specs if s.key not in have and source_of(s, protocol.sources) in waiting]
     if stuck:
         made = sorted({recorded[s.key]["platform"] or "not recorded (before 2026-12-07)" for s in waiting})
         raise Waiting(f"{len(stuck)} runs wait, their sources' rows not reproduced on this platform ({here}; the rows "
