@@ -531,7 +531,9 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     if shard.count > 1:
         mine = (f"; {total - done - len(needed)} by the other processes ({shard.describe()} runs the runs of index "
                 f"{shard.index} mod {shard.count})")
-    log(f"kx table3: {total} runs, {done} done, {len(needed)} to run{grouped}{redo}{mine} -> {out}")
+    held = sum(1 for s in needed if source_of(s, protocol.sources) in waiting)
+    held = f" ({held} of them waiting for a source not reproduced here)" if held else ""
+    log(f"kx table3: {total} runs, {done} done, {len(needed)} to run{grouped}{held}{redo}{mine} -> {out}")
     for chunk in again + chunks:
         reproduce = chunk[0] in rebuild
         if not reproduce:
