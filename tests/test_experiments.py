@@ -641,8 +641,8 @@ def test_a_source_that_did_not_reproduce_on_this_platform_is_not_trained_again_a
                                          r"Fitness transfer run 0; neat 4v3 Fitness transfer run 1\. Every other run"):
         t3.run(out, f.protocol, f.to_4v3, log=lines.append)
     assert sum("did not reproduce its row on this platform" in ln for ln in lines) == 2
-    assert any(re.match(r"kx table3: 4 runs, 2 done, 2 to run in 1 groups of up to \d+ \(2 of them waiting for a "
-                        r"source not reproduced here\) -> ", ln) for ln in lines), lines
+    assert any(ln.startswith("kx table3: 4 runs, 2 done, 2 to run (2 of them waiting for a source not reproduced "
+                             "here) -> ") for ln in lines), lines
     assert sorted(p.name for p in (out / "runs").rglob("*") if p.is_dir() and p.name.startswith("run")) == [
         "run00.rejected", "run01.rejected"]  # nothing trained
     assert (out / "results.csv").read_bytes() == f.committed["results.csv"]

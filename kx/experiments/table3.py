@@ -522,7 +522,10 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
             if s.key not in recorded and s not in needed and shard.owns(s.run):
                 needed.append(s)
     total = len({s.key for s in specs} | {s.key for s in needed})
-    again, chunks = groups(rebuild, batch), groups(needed, batch)
+    # runs whose source was set aside here before are neither grouped nor costed: they will not run
+    held = sum(1 for s in needed if source_of(s, protocol.sources) in waiting)
+    again = groups(rebuild, batch)
+    chunks = groups([s for s in needed if source_of(s, protocol.sources) not in waiting], batch)
     progress = progress_lib.Progress(log, again + chunks, total - len(needed), total, rows)
     grouped = f" in {len(chunks)} groups of up to {batch}" if batch > 1 and chunks else ""
     redo = f"; {len(rebuild)} finished sources without a run directory trained again first" if rebuild else ""
@@ -531,7 +534,6 @@ def run(out: str | pathlib.Path, protocol: Protocol, specs: list[RunSpec],
     if shard.count > 1:
         mine = (f"; {total - done - len(needed)} by the other processes ({shard.describe()} runs the runs of index "
                 f"{shard.index} mod {shard.count})")
-    held = sum(1 for s in needed if source_of(s, protocol.sources) in waiting)
     held = f" ({held} of them waiting for a source not reproduced here)" if held else ""
     log(f"kx table3: {total} runs, {done} done, {len(needed)} to run{grouped}{held}{redo}{mine} -> {out}")
     for chunk in again + chunks:
