@@ -16,7 +16,10 @@ Floats rounded by vector instructions can differ on a CPU with other vector exte
 records the CPU's (:func:`cpu_features`) and the XLA flags, and the test takes the fixture whose XLA flags
 and extensions that decide the rounding (:data:`ROUNDING`: the vector width and fused multiply-add) are
 this machine's. tests/fixtures/run_dirs_avx2.json was written by the same command, from the same commit,
-on an AMD EPYC with AVX2 and FMA but no AVX-512 (2026-12-07); where neither fixture matches, the test skips,
+on an AMD EPYC with AVX2 and FMA but no AVX-512 (2026-12-07): NEAT's and HyperNEAT's runs as on AVX-512,
+CMA-ES's not (its eigendecomposition's OpenBLAS kernels: the Zen set OpenBLAS picks there and the Haswell set
+an Intel CPU with AVX2 gets both reproduce it; ``OPENBLAS_CORETYPE=Sandybridge`` does not, and the test then
+fails). Where neither fixture matches, the test skips,
 saying why (write one there as above, to a new tests/fixtures/run_dirs_*.json).
 """
 
