@@ -332,6 +332,8 @@ def assert_forward_equals_reference(pop, rows, x):
     assert np.all(np.abs(out) <= 1.0)  # bipolar sigmoid outputs
 
 
+@pytest.mark.slow  # ~15 s cold (150 CPPNs evolved 40 generations): the default suite checks the forward pass of
+# evolved CPPNs against the reference in test_random_cppn_lineages_stay_valid below
 def test_evolved_cppns_evaluate_as_their_genes_say():
     pop = _run()[0][-1].population
     hidden = np.asarray(jnp.sum(pop.node_kind == HIDDEN, axis=1))

@@ -117,7 +117,8 @@ def test_full_layout_population_mapped_by_algorithm_1(tmp_path):
     assert check_population(result.state.learner.population, t_cfg) == []
 
 
-@pytest.mark.parametrize("seeding", ["champion", "half"])
+# "half" (~8 s cold: its own seeding program) in the slow set; the champion's mutated copies stay in the default suite
+@pytest.mark.parametrize("seeding", ["champion", pytest.param("half", marks=pytest.mark.slow)])
 def test_seedings_with_mutated_copies(sources, seeding):
     src_dir = sources("neat")
     trainer = run_lib.Trainer(_target("neat", src_dir, "4v3", f"transfer.seeding={seeding}"))
