@@ -2,6 +2,7 @@
 runs a cell fixed in advance from an earlier folder's power, its design recorded before any run, and a report that
 shows no result until every planned run is in."""
 
+import csv
 import json
 import pathlib
 import shutil
@@ -94,11 +95,35 @@ def test_the_committed_design_fixes_every_paper_cell_within_the_affordable_most(
                 assert dsg["runs"][a] >= c["runs_needed"] and dsg["runs"][b] >= c["runs_needed"]
 
 
-@pytest.mark.slow
-def test_the_committed_design_is_what_docs_table3_gives_again():
-    """derive() from docs/table3 (whose results the design records by digest) gives the committed design."""
+def _table3_as_the_design_read_it(tmp_path) -> pathlib.Path:
+    """docs/table3 as it stood when the confirmatory design was derived from it (2026-12-06, 56d438f), rebuilt from
+    today's folder: its results.csv has changed since in three ways that leave every number of those runs as it was,
+    undone here: PPO's runs were appended (e.g. d4e24db), the hybrid's target setups were renamed from novelty and
+    none_novelty (e778ca8), and rows gained a platform column (17bb901)."""
+    with (ROOT / "docs" / "table3" / "results.csv").open(newline="") as f:
+        reader = csv.DictReader(f)
+        fields, rows = reader.fieldnames, list(reader)
+    old_name = {new: old for old, new in t3.OLD_SETUPS.items()}
+    then = [{**r, "setup": old_name.get(r["setup"], r["setup"]) if r["phase"] == "target" else r["setup"]}
+            for r in rows if r["method"] != "ppo"]
+    basis = tmp_path / "table3"
+    basis.mkdir()
+    shutil.copy(ROOT / "docs" / "table3" / "protocol.json", basis / "protocol.json")
+    with (basis / "results.csv").open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=[k for k in fields if k != "platform"], extrasaction="ignore",
+                           lineterminator="\n")
+        w.writeheader()
+        w.writerows(then)
+    return basis
+
+
+# in the default suite (7 s, no compiling): in the slow set it failed unseen for two days after docs/table3's
+# results.csv changed its form
+def test_the_committed_design_is_what_docs_table3_gives_again(tmp_path):
+    """derive() from docs/table3's runs as they were when the design was derived (their results.csv then, rebuilt
+    from today's: it has the digest the design records) gives the committed design."""
     dsg = design.renamed(json.loads((ROOT / "docs" / "table3_confirmatory" / "protocol.json").read_text())["design"])
-    derived = confirm.derive(ROOT / "docs" / "table3", log=lambda s: None)
+    derived = confirm.derive(_table3_as_the_design_read_it(tmp_path), log=lambda s: None)
     assert derived["basis"]["results_sha256"] == dsg["basis"]["results_sha256"]
     assert derived["runs"] == dsg["runs"] and derived["basis"] == dsg["basis"]
 
