@@ -117,8 +117,7 @@ def _table3_as_the_design_read_it(tmp_path) -> pathlib.Path:
     return basis
 
 
-# in the default suite (7 s, no compiling): in the slow set it failed unseen for two days after docs/table3's
-# results.csv changed its form
+# in the default suite (7 s, no compiling), so that a change to the form of docs/table3's results.csv shows at once
 def test_the_committed_design_is_what_docs_table3_gives_again(tmp_path):
     """derive() from docs/table3's runs as they were when the design was derived (their results.csv then, rebuilt
     from today's: it has the digest the design records) gives the committed design."""
